@@ -1,0 +1,5 @@
+"""``python -m dozerlab`` runs the command-line interface."""
+
+from dozerlab.cli import main
+
+raise SystemExit(main())

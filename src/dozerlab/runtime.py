@@ -1,0 +1,62 @@
+"""Process-level settings shared by every command: the thread budget and atomic outputs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+class DozerlabError(Exception):
+    """An error the user can act on; the CLI prints its message without a traceback."""
+
+
+def set_threads(n: int) -> int:
+    """Limit numba, torch and BLAS to ``n`` threads (the Snakemake rule's ``threads``).
+
+    Snakemake sets ``OMP_NUM_THREADS`` but not ``NUMBA_NUM_THREADS``; numba's pool size is
+    fixed when it first starts, so the environment is set before numba is used, and the
+    active count after. Returns the count in effect.
+    """
+    if n < 1:
+        raise ValueError(f"threads must be >= 1, got {n}")
+    for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(n)
+    import numba
+
+    n = min(n, numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(n)
+    try:
+        import torch
+    except ImportError:
+        return n
+    torch.set_num_threads(n)
+    return n
+
+
+@contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` to write into; rename it to ``path`` on success.
+
+    Works for files and directories (zarr stores). On any exception the temporary is removed
+    and ``path`` is left as it was, so no half-written output is ever mistaken for a result.
+    """
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}")
+    _remove(tmp)
+    try:
+        yield tmp
+        _remove(final)
+        os.replace(tmp, final)
+    finally:
+        _remove(tmp)
+
+
+def _remove(p: Path) -> None:
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p)
+    elif p.exists() or p.is_symlink():
+        p.unlink()
