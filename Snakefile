@@ -3,12 +3,38 @@ from snakemake.utils import min_version
 
 min_version("9.0")
 
+
 configfile: "config/config.yaml"
 
 
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
+include: "workflow/rules/scenarios.smk"
+include: "workflow/rules/simulate.smk"
+include: "workflow/rules/learn.smk"
+include: "workflow/rules/report.smk"
+
+
+localrules:
+    all,
 
 
 rule all:
     input:
         all_targets(),
+
+
+# One parent MLflow run per invocation that runs jobs (Snakemake calls onstart only then, so a
+# rerun with nothing to do logs nothing); every job's run is its child.
+onstart:
+    start_parent_run()
+
+
+onsuccess:
+    end_parent_run("FINISHED", log)
+
+
+onerror:
+    end_parent_run("FAILED", log)

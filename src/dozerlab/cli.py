@@ -21,6 +21,11 @@ from dozerlab.runtime import DozerlabError
 # Modules that define ``register(subparsers)``; each adds its own commands.
 COMMAND_MODULES = (
     "dozerlab.config_cli",
+    "dozerlab.tracking_cli",
+    "dozerlab.report.cli",
+    "dozerlab.scenarios.cli",
+    "dozerlab.fields.cli",
+    "dozerlab.learn.cli",
 )
 
 

@@ -1,11 +1,91 @@
-# Shared helpers of the rules: the validated config and the sweep's target paths.
+# Shared helpers of the rules: the validated config, the sweep's points and target paths, the
+# per-rule config sections and the parent MLflow run of this invocation.
 import json
+import os
+import shlex
+import subprocess
+import sys
 
-from dozerlab.config import load_config
+from dozerlab import tracking
+from dozerlab.config import load_config, schema
+from dozerlab.report import points as P
 
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))
+POINTS = P.sweep_points(config)
+RESULTS = "results"
+if not config["mlflow"]["enabled"]:
+    os.environ["DOZERLAB_MLFLOW"] = "0"  # the jobs' tracked_run reads this
+
+# Any point can be built by asking for its path, in the sweep or not; numbers are plain
+# decimals with a point (P.fmt_number), so a path names one run only.
+wildcard_constraints:
+    scenario="|".join(schema()["properties"]["sweep"]["properties"]["scenarios"]["items"]["enum"]),
+    speed=P.NUMBER_PATTERN,
+    depth=P.NUMBER_PATTERN,
+    model="[a-z]+",
+
+
+def config_json(*sections):
+    """The named config sections as inline JSON for a command's --config (a rule's params).
+
+    A rule reruns when its params change, so each rule passes only what its command reads.
+    """
+    return json.dumps({name: config[name] for name in sections}, sort_keys=True, separators=(",", ":"))
+
+
+def canonical(wildcards):
+    """Refuse non-canonical spellings (speed~1, speed~1.00): they would duplicate a run."""
+    P.check_canonical("speed", wildcards.speed)
+    P.check_canonical("depth", wildcards.depth)
+    return []
+
+
+def fields_of(role):
+    """The field stores of the sweep's points of one role."""
+    return [str(P.field_path(RESULTS, p)) for p in P.by_role(POINTS, role)]
+
+
+def flag(name, paths):
+    """``--name p1 p2 …`` quoted for the shell, or nothing when there are no paths."""
+    return f"--{name} " + " ".join(shlex.quote(str(p)) for p in paths) if paths else ""
+
+
+def validated_models():
+    """Models validated on the held-out points (none without held-out points)."""
+    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
+    return config["learn"]["models"] if held_out else []
 
 
 def all_targets():
-    return []
+    """Every result of the configured sweep, spelled as a user would ask for it."""
+    targets = [str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in POINTS})]
+    for p in POINTS:
+        targets += [str(P.trajectory_path(RESULTS, p, "csv")), str(P.trajectory_path(RESULTS, p, "png"))]
+        targets.append(str(P.field_path(RESULTS, p)))
+    targets += [str(P.model_path(RESULTS, m)) for m in config["learn"]["models"]]
+    targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
+    targets.append(f"{RESULTS}/report/index.html")
+    return targets
+
+
+def start_parent_run():
+    """Start this invocation's parent MLflow run and export its id to the jobs' environment."""
+    if not tracking.enabled():
+        return
+    cmd = [sys.executable, "-m", "dozerlab", "mlflow-start", "--config", json.dumps(config),
+           "--name", "workflow", "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
+    run_id = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True).stdout.strip()
+    os.environ[tracking.PARENT_ENV] = run_id
+
+
+def end_parent_run(status, log):
+    """End the parent run with ``status``, attaching the report and Snakemake's log if new."""
+    run_id = os.environ.get(tracking.PARENT_ENV)
+    if not tracking.enabled() or not run_id:
+        return
+    artifacts = [f"{RESULTS}/report/index.html"] + ([str(log)] if log else [])
+    cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
+    for path in artifacts:
+        cmd += ["--artifact", path]
+    subprocess.run(cmd, check=status != "FINISHED")

@@ -1,0 +1,199 @@
+"""Field-store read throughput (and, with ``--sampling``, the cost of sampling next to a solver step).
+
+Writes thesis-size stores (48×48×20 bins per step) of synthetic fields shaped like real ones — a
+granular bed filling the lower part of the volume, empty bins above it — and reads them back:
+
+* a table over codecs and ``chunk_steps`` (smaller stores, ``--table-steps``): write MB/s,
+  compression ratio, decoded GB/s of a full read and of random batches of 64 scattered steps;
+* the default codec on ``--steps`` steps beside a raw ``.npy`` read of the same data, with the
+  targets: full read >= 1 GB/s and within 2x of the ``.npy`` read.
+
+Decoded GB/s counts the float32 bytes of velocity + density handed back. Both formats are read
+from the page cache right after writing, so the figures compare decoding, not disks.
+
+    python benchmarks/field_store_read.py [--steps 1500] [--table-steps 384] [--sampling]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec, ZstdCodec
+
+from dozerlab.fields.store import ATTRS, FieldStoreWriter, default_codec
+
+BINS = (48, 48, 20)
+BATCH = 64
+
+
+def synthetic_steps(n: int, seed: int = 0):
+    """Yield n (velocity (48,48,20,3), density (48,48,20)) float32 steps of a moving pile."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0, 1, BINS[0])[:, None, None]
+    z = np.linspace(0, 1, BINS[2])[None, None, :]
+    for t in range(n):
+        surface = 0.35 + 0.25 * np.exp(-((x - 0.3 - 0.1 * np.sin(t / 50)) / 0.25) ** 2)
+        filled = np.broadcast_to(z < surface, BINS)
+        rho = np.where(filled, 1500 + 100 * rng.standard_normal(BINS), 0).astype(np.float32)
+        vel = np.where(filled[..., None], rng.normal(0.0, 0.2, (*BINS, 3)) + [0.8, 0, 0.1], 0).astype(np.float32)
+        yield vel, rho
+
+
+def write(path: Path, steps: int, codec, chunk_steps: int) -> float:
+    """Write a store; return the wall time in s."""
+    c = [(np.arange(n) + 0.5) * 0.025 for n in BINS]
+    zero = np.zeros(3)
+    start = time.perf_counter()
+    with FieldStoreWriter(path, x=c[0], y=c[1], z=c[2], attrs={a: None for a in ATTRS},
+                          chunk_steps=chunk_steps, codec=codec) as w:
+        for t, (vel, rho) in enumerate(synthetic_steps(steps)):
+            w.append(t * 0.01, vel, rho, zero, zero, zero, zero)
+    return time.perf_counter() - start
+
+
+def du(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def read_full(path: Path) -> float:
+    """Decoded GB/s of reading all of velocity and density with zarr."""
+    g = zarr.open_group(path, mode="r")
+    start = time.perf_counter()
+    nbytes = g["velocity"][:].nbytes + g["density"][:].nbytes
+    return nbytes / (time.perf_counter() - start) / 1e9
+
+
+def read_batches(path: Path, steps: int, batches: int, rng: np.random.Generator) -> float:
+    """Decoded GB/s of random batches of 64 scattered steps (sorted, as a loader would ask)."""
+    g = zarr.open_group(path, mode="r")
+    vel, rho = g["velocity"], g["density"]
+    nbytes, elapsed = 0, 0.0
+    for _ in range(batches):
+        idx = np.sort(rng.choice(steps, size=BATCH, replace=False))
+        start = time.perf_counter()
+        nbytes += vel.oindex[idx].nbytes + rho.oindex[idx].nbytes
+        elapsed += time.perf_counter() - start
+    return nbytes / elapsed / 1e9
+
+
+def npy_reads(tmp: Path, steps: int, batches: int, rng: np.random.Generator) -> tuple[float, float]:
+    """(full, batch) GB/s of the same data as raw .npy files (np.load; batches via memory map)."""
+    vel = np.lib.format.open_memmap(tmp / "velocity.npy", mode="w+", dtype=np.float32, shape=(steps, *BINS, 3))
+    rho = np.lib.format.open_memmap(tmp / "density.npy", mode="w+", dtype=np.float32, shape=(steps, *BINS))
+    for t, (v, r) in enumerate(synthetic_steps(steps)):
+        vel[t], rho[t] = v, r
+    vel.flush(), rho.flush()
+    del vel, rho
+    start = time.perf_counter()
+    nbytes = np.load(tmp / "velocity.npy").nbytes + np.load(tmp / "density.npy").nbytes
+    full = nbytes / (time.perf_counter() - start) / 1e9
+    v = np.load(tmp / "velocity.npy", mmap_mode="r")
+    r = np.load(tmp / "density.npy", mmap_mode="r")
+    nbytes, elapsed = 0, 0.0
+    for _ in range(batches):
+        idx = np.sort(rng.choice(steps, size=BATCH, replace=False))
+        start = time.perf_counter()
+        nbytes += np.ascontiguousarray(v[idx]).nbytes + np.ascontiguousarray(r[idx]).nbytes
+        elapsed += time.perf_counter() - start
+    (tmp / "velocity.npy").unlink()
+    (tmp / "density.npy").unlink()
+    return full, nbytes / elapsed / 1e9
+
+
+CODECS = {
+    "blosc-lz4-5": lambda: BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"),
+    "blosc-lz4-1": lambda: BloscCodec(cname="lz4", clevel=1, shuffle="shuffle"),
+    "blosc-zstd-1": lambda: BloscCodec(cname="zstd", clevel=1, shuffle="shuffle"),
+    "zstd-3": lambda: ZstdCodec(level=3),
+}
+
+
+def table(tmp: Path, steps: int, batches: int) -> None:
+    print(f"\ncodec × chunk_steps, {steps} steps of {BINS} bins "
+          f"({steps * np.prod(BINS) * 16 / 1e9:.2f} GB decoded)")
+    print(f"{'codec':14} {'chunk':>5} {'write MB/s':>10} {'ratio':>6} {'full GB/s':>9} {'batch GB/s':>10}")
+    rows = [(name, 64) for name in CODECS] + [("blosc-lz4-5", 16), ("blosc-lz4-5", 256)]
+    for name, chunk in rows:
+        path = tmp / f"{name}-{chunk}.zarr"
+        wall = write(path, steps, CODECS[name](), chunk)
+        raw = steps * np.prod(BINS) * 16
+        full = read_full(path)
+        batch = read_batches(path, steps, batches, np.random.default_rng(1))
+        print(f"{name:14} {chunk:>5} {raw / wall / 1e6:>10.0f} {raw / du(path):>6.2f} {full:>9.2f} {batch:>10.2f}")
+        shutil.rmtree(path)
+
+
+def headline(tmp: Path, steps: int, batches: int) -> None:
+    path = tmp / "default.zarr"
+    wall = write(path, steps, default_codec(), 64)
+    raw = steps * np.prod(BINS) * 16
+    full = read_full(path)
+    batch = read_batches(path, steps, batches, np.random.default_rng(2))
+    shutil.rmtree(path)
+    npy_full, npy_batch = npy_reads(tmp, steps, batches, np.random.default_rng(2))
+    print(f"\ndefault store ({default_codec().to_dict()['configuration']}, chunk_steps 64), "
+          f"{steps} steps = {raw / 1e9:.2f} GB decoded; write {raw / wall / 1e6:.0f} MB/s")
+    print(f"  full read    zarr {full:6.2f} GB/s   npy {npy_full:6.2f} GB/s   ratio {npy_full / full:4.2f}x")
+    print(f"  64-step batch zarr {batch:6.2f} GB/s   npy {npy_batch:6.2f} GB/s   ratio {npy_batch / batch:4.2f}x")
+    ok = full >= 1.0 and npy_full / full <= 2.0
+    print(f"  target (full >= 1 GB/s and within 2x of npy): {'met' if ok else 'NOT met'}")
+
+
+def sampling_cost(particles: int, steps: int) -> None:
+    """Time one sample of a thesis-size grid against solver steps of a lattice bed of ~particles."""
+    from dozerlab.config import load_config
+    from dozerlab.fields.sampling import SamplingGrid
+    from dozerlab.ndem import World
+
+    cfg = load_config({"sampling": {"bins": list(BINS), "length": 1.2, "below_edge": 0.15}})
+    r = float(cfg["bed"]["radius"])
+    side = int(round(particles ** (1 / 3)))
+    g = (np.arange(side) + 0.5) * 2 * r
+    pos = np.array(np.meshgrid(g, g - side * r, g, indexing="ij")).reshape(3, -1).T
+    world = World.from_config(cfg)
+    world.add_plane(point=(0, 0, 0), normal=(0, 0, 1))
+    m = cfg["material"]
+    world.add_spheres(pos, np.full(len(pos), r), m["density"], m["friction"], m["rolling_resistance"])
+    grid = SamplingGrid.from_config(cfg)
+    tip = np.array([0.0, 0.0, 0.15])
+    world.step()
+    grid.sample(world.positions, world.velocities, world.radii, world.masses, tip)  # compile
+    start = time.perf_counter()
+    for _ in range(steps):
+        world.step()
+    step_time = (time.perf_counter() - start) / steps
+    start = time.perf_counter()
+    for _ in range(steps):
+        grid.sample(world.positions, world.velocities, world.radii, world.masses, tip)
+    sample_time = (time.perf_counter() - start) / steps
+    print(f"\nsampling {BINS} bins, {len(pos)} particles, {cfg['solver']['iterations']} PGS iterations: "
+          f"solver step {1e3 * step_time:.1f} ms, sample {1e3 * sample_time:.2f} ms "
+          f"= {100 * sample_time / step_time:.1f} % of a step")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=1500, help="steps of the headline store (default 1500)")
+    parser.add_argument("--table-steps", type=int, default=384, help="steps per store of the codec table (0 skips)")
+    parser.add_argument("--batches", type=int, default=8, help="random 64-step batches per read test")
+    parser.add_argument("--sampling", action="store_true", help="also time sampling against solver steps")
+    parser.add_argument("--particles", type=int, default=8000, help="particles of the --sampling bed")
+    parser.add_argument("--dir", default=None, help="scratch directory (default: a temporary one)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(dir=args.dir) as d:
+        tmp = Path(d)
+        if args.table_steps:
+            table(tmp, args.table_steps, args.batches)
+        headline(tmp, args.steps, args.batches)
+    if args.sampling:
+        sampling_cost(args.particles, 5)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,144 @@
+"""Figures of a field store: x–z slices (after the thesis's figures 4.1–4.2), force series, GIFs.
+
+A slice is the y-plane through the middle of the sampling volume: density as a heat map and the
+in-plane (x, z) velocity relative to the blade as arrows, with the blade drawn at the left edge.
+Figures use matplotlib's object API (no pyplot state), so they are safe in worker processes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+from matplotlib.figure import Figure
+
+from dozerlab.fields.store import store_config
+from dozerlab.runtime import atomic_output
+
+
+def _blade_size(ds: xr.Dataset) -> tuple[float, float]:
+    """(thickness, height) of the blade in m, from the store's config or the volume's extent."""
+    blade = store_config(ds).get("blade", {})
+    x = ds["x"].values
+    top = float(ds["z"].values[-1] + (ds["z"].values[-1] - ds["z"].values[-2]) / 2) if ds.sizes["z"] > 1 else 0.0
+    return float(blade.get("thickness", 0.04 * (x[-1] - x[0] + 1e-9))), float(blade.get("height", max(top, 0.0)))
+
+
+class _Slice:
+    """A figure of the middle y-slice whose data are swapped per step (cheap animation frames)."""
+
+    def __init__(self, fig: Figure, ds: xr.Dataset, vmax: float) -> None:
+        self.ds, self.fig = ds, fig
+        self.j = ds.sizes["y"] // 2
+        x, z = ds["x"].values, ds["z"].values
+        ax = self.ax = fig.add_subplot()
+        self.mesh = ax.pcolormesh(x, z, np.zeros((z.size, x.size)), shading="nearest", cmap="viridis",
+                                  vmin=0.0, vmax=vmax)
+        fig.colorbar(self.mesh, ax=ax, label="density (kg/m³)")
+        xx, zz = np.meshgrid(x, z, indexing="ij")
+        self.arrows = ax.quiver(xx.ravel(), zz.ravel(), np.zeros(xx.size), np.zeros(xx.size),
+                                color="white", angles="xy", scale_units="xy", scale=None, width=0.003)
+        thickness, height = _blade_size(ds)
+        ax.fill_between([-thickness, 0.0], 0.0, height, color="0.4", label="blade")
+        ax.set_xlim(-thickness, x[-1] + (x[-1] - x[-2] if x.size > 1 else thickness) / 2)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x in front of the blade (m)")
+        ax.set_ylabel("z above the blade tip (m)")
+
+    def show(self, step: int) -> None:
+        ds, j = self.ds, self.j
+        rho = ds["density"].isel(time=step, y=j).values  # (Nx, Nz)
+        rel = ds["velocity"].isel(time=step, y=j).values - ds["blade_velocity"].isel(time=step).values
+        rel[rho <= 0] = 0.0  # no arrows in empty bins
+        self.mesh.set_array(rho.T.ravel())
+        self.arrows.set_UVC(rel[..., 0].ravel(), rel[..., 2].ravel())
+        t = float(ds["time"].values[step])
+        self.ax.set_title(f"t = {t:.2f} s, y = {float(ds['y'].values[j]):+.3f} m; "
+                          "arrows: velocity relative to the blade", fontsize=9)
+
+
+def _density_max(ds: xr.Dataset) -> float:
+    rho = ds["density"]
+    peak = float(rho.isel(time=slice(None, None, max(1, ds.sizes["time"] // 50))).max())
+    return peak if peak > 0 else 1.0
+
+
+def plot_slice(ds: xr.Dataset, step: int, path: str | Path) -> Path:
+    """Write a PNG of the middle y-slice at time index ``step`` (0 <= step < T)."""
+    n = ds.sizes["time"]
+    if not -n <= step < n:
+        raise ValueError(f"step must be in [0, {n}) for a store of {n} steps, got {step}")
+    fig = Figure(figsize=(9, 5), layout="constrained")
+    _Slice(fig, ds, _density_max(ds)).show(step % n)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    return Path(path)
+
+
+def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
+    """Write a PNG of the blade force (N) and torque about the tip (N·m) over time."""
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    ax_f, ax_t = fig.subplots(2, 1, sharex=True)
+    t = ds["time"].values
+    for ax, name, unit in ((ax_f, "force", "N"), (ax_t, "torque", "N·m")):
+        v = ds[name].values
+        for a, c in enumerate("xyz"):
+            ax.plot(t, v[:, a], lw=1, label=f"{name} {c}")
+        ax.plot(t, np.linalg.norm(v, axis=1), "k", lw=1.2, label=f"|{name}|")
+        ax.set_ylabel(f"{name} ({unit})")
+        ax.legend(loc="upper left", fontsize=8, ncol=4)
+        ax.grid(alpha=0.3)
+    ax_t.set_xlabel("time (s)")
+    ax_f.set_title(f"blade force and torque about the tip — {ds.attrs.get('scenario')}, "
+                   f"v = {ds.attrs.get('speed')} m/s, d = {ds.attrs.get('depth')} m")
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    return Path(path)
+
+
+def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10) -> Path:
+    """Write a GIF of the middle y-slice over the run, ``frames`` evenly spaced steps (>= 1)."""
+    from matplotlib.animation import PillowWriter
+
+    if frames < 1 or fps < 1:
+        raise ValueError(f"frames and fps must be >= 1, got {frames}, {fps}")
+    n = ds.sizes["time"]
+    if n == 0:
+        raise ValueError("cannot animate a store with no steps")
+    steps = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
+    vmax = _density_max(ds)
+    fig = Figure(figsize=(8, 4.5), layout="constrained")
+    view = _Slice(fig, ds, vmax)
+    view.show(int(steps[0]))
+    fig.canvas.draw()
+    fig.set_layout_engine("none")  # fix the layout once; frames only swap data
+    writer = PillowWriter(fps=fps)
+    with atomic_output(path) as tmp:
+        gif = tmp.with_name(tmp.name + ".gif")  # Pillow picks the format from the extension
+        try:
+            with writer.saving(fig, str(gif), dpi=80):
+                for s in steps:
+                    view.show(int(s))
+                    writer.grab_frame()
+            os.replace(gif, tmp)
+        finally:
+            gif.unlink(missing_ok=True)
+    return Path(path)
+
+
+def plot_run(ds: xr.Dataset, out_dir: str | Path, *, steps: Sequence[int] | None = None,
+             animation: bool = True, frames: int = 60) -> list[Path]:
+    """Write slices at ``steps`` (default: four spread over the run), the force plot and a GIF
+    of ``frames`` frames."""
+    out = Path(out_dir)
+    n = ds.sizes["time"]
+    if steps is None:
+        steps = sorted({int(s) for s in np.linspace(0, max(n - 1, 0), min(4, n)).round()})
+    paths = [plot_slice(ds, s, out / f"slice_{s % n:06d}.png") for s in steps]
+    paths.append(plot_force(ds, out / "force.png"))
+    if animation and n:
+        paths.append(animate(ds, out / "fields.gif", frames=frames))
+    return paths

@@ -1,0 +1,314 @@
+"""The field store: sampled fields of one run as a zarr v3 group that ``xarray.open_zarr`` opens.
+
+Schema (ARCHITECTURE.md, "The field store"):
+
+========================================  ==============================  =====================
+variable                                  dims                            unit
+========================================  ==============================  =====================
+``velocity``                              (time, x, y, z, component)      m/s, float32
+``density``                               (time, x, y, z)                 kg/m³, float32
+``force``, ``torque``                     (time, component)               N, N·m (torque about the tip)
+``blade_velocity``, ``blade_position``    (time, component)               m/s, m (tip, world frame)
+``time``                                  (time)                          s
+========================================  ==============================  =====================
+
+Coordinates ``x``, ``y``, ``z`` are bin centres in the blade frame (origin at the tip),
+``component`` is ``["x", "y", "z"]``.
+
+:class:`FieldStoreWriter` writes a store while a run produces it, in constant memory: it buffers
+one chunk of ``chunk_steps`` steps, then writes it. Each field chunk is a zarr *shard* holding
+one inner chunk per step, so whole-run reads decode large sequential shards while random batches
+of steps decode only the steps they ask for. The store is built in a temporary sibling that is
+renamed on a successful close, so a failed run leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import warnings
+from collections.abc import Mapping
+from contextlib import ExitStack
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import xarray as xr
+import zarr
+from zarr.codecs import BloscCodec
+
+from dozerlab.runtime import atomic_output
+
+COMPONENTS = ("x", "y", "z")
+#: Dimensions of each data variable.
+SCHEMA: dict[str, tuple[str, ...]] = {
+    "velocity": ("time", "x", "y", "z", "component"),
+    "density": ("time", "x", "y", "z"),
+    "force": ("time", "component"),
+    "torque": ("time", "component"),
+    "blade_velocity": ("time", "component"),
+    "blade_position": ("time", "component"),
+}
+UNITS = {
+    "velocity": "m/s",
+    "density": "kg/m^3",
+    "force": "N",
+    "torque": "N*m",
+    "blade_velocity": "m/s",
+    "blade_position": "m",
+    "time": "s",
+    "x": "m",
+    "y": "m",
+    "z": "m",
+}
+#: Attributes every store carries (values may be null where a source lacks them).
+ATTRS = (
+    "scenario", "speed", "depth", "bins", "bin_size", "dt", "iterations", "sample_every",
+    "particle_count", "seed", "dozerlab_version", "config",
+)
+#: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
+DEFAULT_CHUNK_STEPS = 64
+
+
+def default_codec() -> BloscCodec:
+    """The fields' compressor: Blosc LZ4 with byte shuffle (``benchmarks/field_store_read.py`` compares others)."""
+    return BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")
+
+
+class FieldStoreWriter:
+    """Write a field store step by step in constant memory (one buffered chunk).
+
+    Use as a context manager; the store appears at ``path`` only when the block exits without
+    an exception.
+
+    Args:
+        path: the ``.zarr`` directory to create (replaced if it exists).
+        x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
+        attrs: store attributes (ARCHITECTURE.md); must be JSON-serialisable.
+        chunk_steps: time steps per shard (>= 1).
+        codec: the fields' compressor (default :func:`default_codec`).
+        inner_steps: time steps per inner chunk of a shard (1 <= inner_steps <= chunk_steps;
+            must divide chunk_steps).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        x: np.ndarray,
+        y: np.ndarray,
+        z: np.ndarray,
+        attrs: Mapping[str, Any],
+        chunk_steps: int = DEFAULT_CHUNK_STEPS,
+        codec: Any = None,
+        inner_steps: int = 1,
+    ) -> None:
+        if chunk_steps < 1:
+            raise ValueError(f"chunk_steps must be >= 1, got {chunk_steps}")
+        if not 1 <= inner_steps <= chunk_steps or chunk_steps % inner_steps:
+            raise ValueError(f"inner_steps must divide chunk_steps={chunk_steps}, got {inner_steps}")
+        self.coords = {}
+        for name, c in (("x", x), ("y", y), ("z", z)):
+            c = np.ascontiguousarray(c, dtype=np.float32)
+            if c.ndim != 1 or c.size < 1:
+                raise ValueError(f"coordinate {name} must be a non-empty 1-D array, got shape {c.shape}")
+            self.coords[name] = c
+        try:
+            self.attrs = json.loads(json.dumps(dict(attrs), allow_nan=False))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"store attrs must be JSON-serialisable without NaN: {exc}") from exc
+        self.path = Path(path)
+        self.chunk_steps = chunk_steps
+        self.inner_steps = inner_steps
+        self.codec = codec if codec is not None else default_codec()
+        self.grid = (self.coords["x"].size, self.coords["y"].size, self.coords["z"].size)
+        self.steps = 0
+        self._fill = 0
+        self._stack: ExitStack | None = None
+        self._arrays: dict[str, zarr.Array] = {}
+        self._buf: dict[str, np.ndarray] = {}
+
+    def _shape(self, name: str) -> tuple[int, ...]:
+        return {"velocity": (*self.grid, 3), "density": self.grid}.get(name, (3,))
+
+    def __enter__(self) -> FieldStoreWriter:
+        self._stack = ExitStack()
+        tmp = self._stack.enter_context(atomic_output(self.path))
+        try:
+            self._create(tmp)
+        except BaseException:
+            self._stack.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def _create(self, tmp: Path) -> None:
+        group = zarr.open_group(tmp, mode="w", zarr_format=3)
+        for name, c in self.coords.items():
+            a = group.create_array(name, shape=c.shape, dtype="f4", dimension_names=(name,), compressors=None)
+            a[:] = c
+            a.attrs.update({"units": "m", "long_name": f"bin centre {name}, blade frame"})
+        comp = group.create_array("component", shape=(3,), dtype=str, dimension_names=("component",))
+        comp[:] = np.array(COMPONENTS)
+        n = self.chunk_steps
+        t = group.create_array("time", shape=(0,), chunks=(n,), dtype="f8", dimension_names=("time",), fill_value=0.0)
+        t.attrs["units"] = "s"
+        self._arrays["time"] = t
+        self._buf["time"] = np.zeros(n, dtype=np.float64)
+        for name, dims in SCHEMA.items():
+            shape = self._shape(name)
+            field = name in ("velocity", "density")
+            a = group.create_array(
+                name,
+                shape=(0, *shape),
+                shards=(n, *shape) if field else None,
+                chunks=(self.inner_steps, *shape) if field else (n, *shape),
+                dtype="f4",
+                dimension_names=dims,
+                fill_value=0.0,
+                compressors=self.codec if field else None,
+            )
+            a.attrs["units"] = UNITS[name]
+            self._arrays[name] = a
+            self._buf[name] = np.zeros((n, *shape), dtype=np.float32)
+        group.attrs.update(self.attrs)
+        self._group = group
+
+    def append(
+        self,
+        time: float,
+        velocity: np.ndarray,
+        density: np.ndarray,
+        force: np.ndarray,
+        torque: np.ndarray,
+        blade_velocity: np.ndarray,
+        blade_position: np.ndarray,
+    ) -> None:
+        """Add one sampled step.
+
+        Args:
+            time: simulated time, s.
+            velocity: bin velocities (Nx, Ny, Nz, 3), m/s.
+            density: bin densities (Nx, Ny, Nz), kg/m³.
+            force, torque: on the blade, (3,) N and N·m about the tip.
+            blade_velocity, blade_position: of the tip, (3,) m/s and m.
+        """
+        if self._stack is None:
+            raise RuntimeError("FieldStoreWriter.append called outside its `with` block")
+        values = {
+            "velocity": velocity, "density": density, "force": force, "torque": torque,
+            "blade_velocity": blade_velocity, "blade_position": blade_position,
+        }
+        i = self._fill
+        for name, v in values.items():
+            v = np.asarray(v)
+            if v.shape != self._shape(name):
+                raise ValueError(f"{name} must have shape {self._shape(name)}, got {v.shape}")
+            self._buf[name][i] = v
+        self._buf["time"][i] = time
+        self._fill += 1
+        if self._fill == self.chunk_steps:
+            self._flush()
+
+    def _flush(self) -> None:
+        k = self._fill
+        if k == 0:
+            return
+        start, stop = self.steps, self.steps + k
+        for name, a in self._arrays.items():
+            a.resize((stop, *a.shape[1:]))
+            a[start:stop] = self._buf[name][:k]
+        self.steps = stop
+        self._fill = 0
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> bool:
+        stack, self._stack = self._stack, None
+        assert stack is not None
+        if exc_type is None:
+            try:
+                self._flush()
+                with warnings.catch_warnings():
+                    # zarr notes that consolidated metadata is outside the v3 spec; xarray reads it.
+                    warnings.simplefilter("ignore")
+                    zarr.consolidate_metadata(self._group.store)
+            except BaseException:
+                stack.__exit__(*sys.exc_info())
+                raise
+        return bool(stack.__exit__(exc_type, exc, tb))
+
+
+def write_store(
+    path: str | Path,
+    *,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    time: np.ndarray,
+    velocity: np.ndarray,
+    density: np.ndarray,
+    force: np.ndarray,
+    torque: np.ndarray,
+    blade_velocity: np.ndarray,
+    blade_position: np.ndarray,
+    attrs: Mapping[str, Any],
+    chunk_steps: int = DEFAULT_CHUNK_STEPS,
+    **writer_options: Any,
+) -> Path:
+    """Write whole arrays (leading axis time, length T) as a field store; returns ``path``.
+
+    Shapes as in :meth:`FieldStoreWriter.append` with a leading (T,) axis.
+    """
+    time = np.asarray(time)
+    if time.ndim != 1:
+        raise ValueError(f"time must be 1-D, got shape {time.shape}")
+    series = (velocity, density, force, torque, blade_velocity, blade_position)
+    for name, v in zip(SCHEMA, series, strict=True):
+        if len(v) != time.size:
+            raise ValueError(f"{name} has {len(v)} steps but time has {time.size}")
+    with FieldStoreWriter(path, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps, **writer_options) as w:
+        for i in range(time.size):
+            w.append(float(time[i]), *(v[i] for v in series))
+    return Path(path)
+
+
+def open_store(path: str | Path) -> xr.Dataset:
+    """Open a field store lazily and check it against the schema.
+
+    Raises ``ValueError`` naming every missing variable, coordinate or attribute and every
+    variable with the wrong dimensions.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"field store not found: {path}")
+    try:
+        ds = xr.open_zarr(path)
+    except Exception as exc:  # zarr/xarray raise several kinds for a non-store directory
+        raise ValueError(f"{path} is not a readable zarr field store: {exc}") from exc
+    problems = []
+    for name, dims in SCHEMA.items():
+        if name not in ds.variables:
+            problems.append(f"missing variable '{name}' {dims}")
+        elif ds[name].dims != dims:
+            problems.append(f"variable '{name}' has dims {ds[name].dims}, expected {dims}")
+    for name in ("time", "x", "y", "z", "component"):
+        if name not in ds.coords:
+            problems.append(f"missing coordinate '{name}'")
+    if "component" in ds.coords and [str(c) for c in ds["component"].values] != list(COMPONENTS):
+        problems.append(f"coordinate 'component' must be {list(COMPONENTS)}")
+    missing_attrs = [a for a in ATTRS if a not in ds.attrs]
+    if missing_attrs:
+        problems.append(f"missing attributes {missing_attrs}")
+    if problems:
+        raise ValueError(f"{path} is not a valid field store: " + "; ".join(problems))
+    return ds
+
+
+def store_config(ds: xr.Dataset) -> dict[str, Any]:
+    """The run's configuration recorded in a store's ``config`` attribute ({} when absent)."""
+    text = ds.attrs.get("config")
+    if not text:
+        return {}
+    return json.loads(text) if isinstance(text, str) else dict(text)
+

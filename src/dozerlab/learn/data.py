@@ -1,0 +1,182 @@
+"""Datasets of (fields, blade velocity) → (force, torque) samples from field stores.
+
+A store is small (a few hundred steps of a ~24×20×12 grid), so it is loaded whole into
+contiguous float32 arrays; batches are gathered by index from those in-memory tensors and the
+model, not the loader, sets the pace. Samples never cross stores: a sample with a history of
+H steps uses steps t-H+1 … t of one store and is labelled with the force/torque of step t.
+
+The split is by sweep point: the stores passed to training are the training points; held-out
+points (interpolation, extrapolation) are only ever read by validation. Early stopping needs
+its own data, so the last ``validation_fraction`` of each training store (a contiguous block,
+the end of the run) is kept out of the gradient and out of the normalisation statistics. It is
+the same sweep point as the training block, so its loss is optimistic; the held-out points are
+the real measure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab.runtime import DozerlabError
+
+TARGET_NAMES = ("force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z")
+
+
+@dataclass
+class StoreData:
+    """One sweep point's samples in memory.
+
+    velocity (T, Nx, Ny, Nz, 3) m/s, density (T, Nx, Ny, Nz) kg/m³, blade_velocity (T, 3) m/s,
+    target (T, 6) force N then torque N·m, time (T,) s; all float32 and C-contiguous.
+    """
+
+    velocity: np.ndarray
+    density: np.ndarray
+    blade_velocity: np.ndarray
+    target: np.ndarray
+    time: np.ndarray
+    point: dict[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    @property
+    def grid(self) -> tuple[int, int, int]:
+        return tuple(int(n) for n in self.density.shape[1:4])  # type: ignore[return-value]
+
+    @property
+    def name(self) -> str:
+        p = self.point
+        if {"scenario", "speed", "depth"} <= p.keys():
+            return f"{p['scenario']} v={p['speed']:g} d={p['depth']:g}"
+        return Path(self.source).stem or "store"
+
+
+def point_key(point: dict[str, Any]) -> tuple[str, float, float] | None:
+    """(scenario, speed, depth) of a sweep point, rounded so float noise cannot hide a match."""
+    if not {"scenario", "speed", "depth"} <= point.keys():
+        return None
+    return (str(point["scenario"]), round(float(point["speed"]), 9), round(float(point["depth"]), 9))
+
+
+def _f32(a: Any) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float32))
+
+
+def from_arrays(
+    velocity: np.ndarray,
+    density: np.ndarray,
+    blade_velocity: np.ndarray,
+    force: np.ndarray,
+    torque: np.ndarray,
+    *,
+    time: np.ndarray | None = None,
+    point: dict[str, Any] | None = None,
+    source: str = "",
+) -> StoreData:
+    """Build a :class:`StoreData` from arrays shaped like a field store's, checking shapes."""
+    v, rho = _f32(velocity), _f32(density)
+    if v.ndim != 5 or v.shape[-1] != 3:
+        raise DozerlabError(f"{source or 'store'}: velocity must be (time, Nx, Ny, Nz, 3), got {v.shape}")
+    if rho.shape != v.shape[:4]:
+        raise DozerlabError(f"{source or 'store'}: density {rho.shape} does not match velocity {v.shape[:4]}")
+    steps = v.shape[0]
+    target = np.concatenate([_f32(force), _f32(torque)], axis=1)
+    vb = _f32(blade_velocity)
+    if target.shape != (steps, 6) or vb.shape != (steps, 3):
+        raise DozerlabError(f"{source or 'store'}: force/torque/blade_velocity must be ({steps}, 3)")
+    t = _f32(np.arange(steps) if time is None else time)
+    return StoreData(v, rho, vb, np.ascontiguousarray(target), t, dict(point or {}), source)
+
+
+def load_store(path: str | Path) -> StoreData:
+    """Read a whole field store into memory; a clear error if it lacks a variable."""
+    from dozerlab.fields.store import open_store
+
+    ds = open_store(path)  # checks the schema: a missing variable is a ValueError naming it
+    point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
+    velocity = ds["velocity"].transpose("time", "x", "y", "z", "component").values
+    density = ds["density"].transpose("time", "x", "y", "z").values
+    return from_arrays(
+        velocity, density, ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
+        time=ds["time"].values, point=point, source=str(path),
+    )
+
+
+def check_grid(stores: list[StoreData], grid: tuple[int, int, int] | None = None) -> tuple[int, int, int]:
+    """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch."""
+    if not stores:
+        raise ValueError("no field stores given (at least one is needed)")
+    expected = tuple(grid) if grid is not None else stores[0].grid
+    for s in stores:
+        if s.grid != expected:
+            raise DozerlabError(
+                f"field store {s.source or s.name} has a {s.grid} grid but the model expects {expected}; "
+                "models only apply to stores sampled with the same sampling.bins"
+            )
+    return expected  # type: ignore[return-value]
+
+
+@dataclass
+class Samples:
+    """Samples over concatenated stores: ``index[i]`` is the row of sample i's current step.
+
+    Rows ``index[i] - history + 1 … index[i]`` are its history, always within one store.
+    ``store_of[i]`` says which store it came from.
+    """
+
+    velocity: np.ndarray
+    density: np.ndarray
+    blade_velocity: np.ndarray
+    target: np.ndarray
+    index: np.ndarray
+    store_of: np.ndarray
+    history: int
+
+    def __len__(self) -> int:
+        return int(self.index.size)
+
+    def rows(self, sel: np.ndarray) -> np.ndarray:
+        """(len(sel), history) rows of the history of the selected samples, oldest first."""
+        return self.index[sel, None] + np.arange(1 - self.history, 1)[None, :]
+
+    def subset(self, mask: np.ndarray) -> Samples:
+        """The samples where ``mask`` holds (the arrays are shared, not copied)."""
+        return Samples(self.velocity, self.density, self.blade_velocity, self.target,
+                       self.index[mask], self.store_of[mask], self.history)
+
+
+def concat(stores: list[StoreData], history: int) -> Samples:
+    """All samples of ``stores`` with ``history`` steps each (the first history-1 steps of a
+    store only serve as history)."""
+    if history < 1:
+        raise ValueError(f"learn.history must be >= 1, got {history}")
+    check_grid(stores)
+    index, store_of, start = [], [], 0
+    for k, s in enumerate(stores):
+        steps = s.target.shape[0]
+        if steps < history:
+            raise DozerlabError(f"{s.source or s.name}: {steps} steps is fewer than learn.history = {history}")
+        index.append(np.arange(start + history - 1, start + steps))
+        store_of.append(np.full(steps - history + 1, k))
+        start += steps
+    cat = lambda name: np.ascontiguousarray(np.concatenate([getattr(s, name) for s in stores]))  # noqa: E731
+    return Samples(cat("velocity"), cat("density"), cat("blade_velocity"), cat("target"),
+                   np.concatenate(index), np.concatenate(store_of), history)
+
+
+def split_train_validation(samples: Samples, fraction: float) -> tuple[Samples, Samples]:
+    """Split each store's samples into a leading training block and a trailing block of
+    ``fraction`` for early stopping (at least one sample each)."""
+    if not 0 < fraction < 1:
+        raise ValueError(f"learn.validation_fraction must be in (0, 1), got {fraction}")
+    is_val = np.zeros(len(samples), dtype=bool)
+    for k in np.unique(samples.store_of):
+        where = np.flatnonzero(samples.store_of == k)
+        if where.size < 2:
+            raise DozerlabError(f"store {k} has {where.size} sample(s); at least 2 are needed to split")
+        n_val = min(max(1, int(round(fraction * where.size))), where.size - 1)
+        is_val[where[-n_val:]] = True
+    return samples.subset(~is_val), samples.subset(is_val)

@@ -1,0 +1,102 @@
+"""The train / validate / evaluate jobs: files in, files out, each an MLflow run."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from dozerlab import tracking
+from dozerlab.learn import pyfunc
+from dozerlab.learn.data import load_store, point_key
+from dozerlab.learn.metrics import flat
+from dozerlab.learn.plots import loss_curves
+from dozerlab.learn.train import TrainResult, train_model
+from dozerlab.learn.validate import evaluate, html_section, load_groups, strip_series, validate
+from dozerlab.runtime import atomic_output
+
+
+def _run(config: dict[str, Any] | None, name: str, **kwargs: Any) -> contextlib.AbstractContextManager[Any]:
+    cfg = (config or {}).get("mlflow", {})
+    if not cfg.get("enabled", True):
+        return contextlib.nullcontext(None)
+    return tracking.tracked_run(name, experiment=cfg.get("experiment", "dozerlab"), **kwargs)
+
+
+def train_job(kind: str, train: list[str | Path], config: dict[str, Any], out: str | Path,
+              device: str | None = None, progress: bool = True) -> TrainResult:
+    """Train ``kind`` on the stores ``train``; save the MLflow model directory at ``out`` and
+    log the run (params, per-epoch losses, final training metrics, loss plot, model)."""
+    import mlflow
+
+    stores = [load_store(p) for p in train]
+    meta = {
+        "train_points": [s.point for s in stores],
+        "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
+        "train_sources": [str(Path(p).resolve()) for p in train],
+        "learn": config["learn"], "seed": config.get("seed"),
+    }
+    params = {"model": kind, "seed": config.get("seed"), "learn": config["learn"],
+              "train_stores": ",".join(str(p) for p in train)}
+    with _run(config, f"train {kind}", rule="train", tags={"model": kind}, params=params) as run:
+        log_epoch = None
+        if run is not None:
+            def log_epoch(epoch: int, tr: float, va: float) -> None:
+                mlflow.log_metrics({"train_loss": tr, "val_loss": va}, step=epoch)
+        result = train_model(kind, stores, config, device=device, on_epoch=log_epoch, progress=progress)
+        meta.update(train_loss=result.train_loss, val_loss=result.val_loss, best_epoch=result.best_epoch,
+                    samples=result.samples, seconds=result.seconds)
+        model = result.model.cpu()
+        example = {"velocity": stores[0].velocity, "density": stores[0].density,
+                   "blade_velocity": stores[0].blade_velocity}
+        with atomic_output(out) as tmp:
+            pyfunc.save(model, meta, tmp, example)
+        if run is not None:
+            fit = evaluate(model, stores)["overall"]
+            mlflow.log_metrics({**flat(fit, "train"), "best_val_loss": min(result.val_loss),
+                                "best_epoch": result.best_epoch, "train_seconds": result.seconds})
+            with tempfile.TemporaryDirectory() as d:
+                mlflow.log_artifact(str(loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", kind)))
+            result.model_uri = pyfunc.log(model, meta, example).model_uri
+    return result
+
+
+def validate_job(model_dir: str | Path, interpolation: list[str | Path], extrapolation: list[str | Path],
+                 out: str | Path, plots_dir: str | Path | None = None,
+                 config: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
+    named after ``out``), the HTML fragment next to the JSON, and an MLflow validate run."""
+    import mlflow
+
+    model, meta = pyfunc.load(model_dir)
+    out = Path(out)
+    pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
+    groups = load_groups(interpolation, extrapolation)
+    params = {"model_dir": str(model_dir), "interpolation": ",".join(map(str, interpolation)),
+              "extrapolation": ",".join(map(str, extrapolation))}
+    with _run(config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params) as run:
+        result = validate(model, meta, groups, pdir, out.parent)
+        with atomic_output(out) as tmp:
+            tmp.write_text(json.dumps(result, indent=1))
+        fragment = out.with_suffix(".html")
+        with atomic_output(fragment) as tmp:
+            tmp.write_text(html_section(out))
+        if run is not None:
+            metrics = flat(result["overall"], "overall")
+            for g, data in result["groups"].items():
+                metrics.update(flat(data["overall"], g))
+            mlflow.log_metrics(metrics)
+            mlflow.log_artifact(str(out))
+            mlflow.log_artifact(str(fragment))
+            mlflow.log_artifacts(str(pdir), artifact_path="plots")
+    return result
+
+
+def evaluate_job(model_dir: str | Path, stores: list[str | Path]) -> dict[str, Any]:
+    """Metrics of a saved model on ``stores`` (per store and overall)."""
+    model, _ = pyfunc.load(model_dir)
+    result = evaluate(model, [load_store(p) for p in stores])
+    result["points"] = strip_series(result["points"])
+    return result

@@ -1,0 +1,184 @@
+"""The force/torque models: ``linear`` (ridge), ``mlp``, ``cnn`` (the thesis's) and ``unet``.
+
+Every model is a :class:`ForceModel`: raw store arrays in, force (N) and torque (N·m) out. It
+turns the fields into physically motivated channels per history step — the velocity relative
+to the blade (3), the density (1) and the momentum density relative to the blade ρ(v − v_b)
+(3), which is zero in empty bins — normalises them per channel with statistics of the training
+points, and passes them with the normalised blade velocity (the conditioning input) to a
+backbone that predicts the normalised targets. The normalisation lives in buffers of the
+module, so a saved state dict is the whole model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+MODEL_NAMES = ("linear", "mlp", "cnn", "unet")
+CHANNELS_PER_STEP = 7
+OUTPUTS = 6
+
+
+class LinearHead(nn.Module):
+    """Ridge regression on the flattened channels and the conditioning (fitted in closed form)."""
+
+    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int]) -> None:
+        super().__init__()
+        self.fc = nn.Linear(in_channels * grid[0] * grid[1] * grid[2] + cond, OUTPUTS)
+
+    def design(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """The design matrix rows (B, D) of inputs x (B, C, X, Y, Z) and c (B, cond)."""
+        return torch.cat([x.flatten(1), c], dim=1)
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        return self.fc(self.design(x, c))
+
+
+class MLP(nn.Module):
+    """Multilayer perceptron on the flattened channels plus the conditioning."""
+
+    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], hidden: int = 256) -> None:
+        super().__init__()
+        d = in_channels * grid[0] * grid[1] * grid[2] + cond
+        self.net = nn.Sequential(
+            nn.Linear(d, hidden), nn.GELU(), nn.Linear(hidden, hidden // 2), nn.GELU(),
+            nn.Linear(hidden // 2, OUTPUTS),
+        )
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x.flatten(1), c], dim=1))
+
+
+def _same2(cin: int, cout: int) -> nn.Sequential:
+    """A 2³ convolution that keeps the grid size (TensorFlow's 'same': one extra bin at the end)."""
+    return nn.Sequential(nn.ConstantPad3d((0, 1, 0, 1, 0, 1), 0.0), nn.Conv3d(cin, cout, 2))
+
+
+class ThesisCNN(nn.Module):
+    """The thesis's multi-scale 3D CNN (SPEC §7): conv 8@2³; three branches (none / max-pool 2
+    / max-pool 4, each then conv 8@2³), upsampled to the grid and added; conv 8@1³; FC 384;
+    FC 192; output. The conditioning joins at the first fully connected layer."""
+
+    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 8) -> None:
+        super().__init__()
+        self.grid = tuple(grid)
+        self.stem = _same2(in_channels, width)
+        self.branches = nn.ModuleList(_same2(width, width) for _ in range(3))
+        self.mix = nn.Conv3d(width, width, 1)
+        d = width * grid[0] * grid[1] * grid[2] + cond
+        self.head = nn.Sequential(nn.Linear(d, 384), nn.ReLU(), nn.Linear(384, 192), nn.ReLU(), nn.Linear(192, OUTPUTS))
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        h = F.relu(self.stem(x))
+        out = F.relu(self.branches[0](h))
+        for scale, conv in ((2, self.branches[1]), (4, self.branches[2])):
+            pooled = F.max_pool3d(h, scale, scale, ceil_mode=True)
+            out = out + F.interpolate(F.relu(conv(pooled)), size=self.grid, mode="nearest")
+        h = F.relu(self.mix(out))
+        return self.head(torch.cat([h.flatten(1), c], dim=1))
+
+
+def _block(cin: int, cout: int, k: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0), nn.GELU())
+
+
+class ForceDensityUNet(nn.Module):
+    """A small 3D U-Net that predicts a force/torque density per bin and sums it over the grid.
+
+    The force on the blade is a sum of what the material in each bin pushes on it, so the
+    readout is a sum of per-bin contributions rather than a dense layer over the whole grid: it
+    has few parameters (less to memorise from a handful of sweep points), and a fuller or faster
+    volume adds contributions instead of landing off the training manifold, which is what
+    extrapolation to deeper cuts and higher speeds asks for. Bin coordinates (blade frame) and
+    the broadcast blade velocity are input channels, so a bin's contribution can depend on its
+    distance to the blade and on the blade's motion; the encoder (two stride-2 levels) gives
+    each bin the context of the material around it, the skips keep the local detail.
+    """
+
+    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 16) -> None:
+        super().__init__()
+        self.grid = tuple(grid)
+        axes = [torch.linspace(-1.0, 1.0, n) for n in grid]
+        self.register_buffer("coords", torch.stack(torch.meshgrid(*axes, indexing="ij")), persistent=False)
+        cin = in_channels + cond + 3
+        self.e0 = _block(cin, width, 1)
+        self.e1 = nn.Sequential(_block(width, width, 2, stride=2), _block(width, width, 3))
+        self.e2 = nn.Sequential(_block(width, 2 * width, 2, stride=2), _block(2 * width, 2 * width, 3))
+        self.d1 = _block(3 * width, width, 1)
+        self.d0 = nn.Sequential(_block(2 * width, width, 1), nn.Conv3d(width, OUTPUTS, 1))
+        self.cond_head = nn.Linear(cond, OUTPUTS)
+
+    @staticmethod
+    def _pad_even(x: torch.Tensor) -> torch.Tensor:
+        pad = []
+        for n in reversed(x.shape[2:]):
+            pad += [0, n % 2]
+        return F.pad(x, pad, mode="replicate") if any(pad) else x
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        b = x.shape[0]
+        cond = c[:, :, None, None, None].expand(-1, -1, *self.grid)
+        h0 = self.e0(torch.cat([x, cond, self.coords.expand(b, -1, -1, -1, -1)], dim=1))
+        h1 = self.e1(self._pad_even(h0))
+        h2 = self.e2(self._pad_even(h1))
+        u1 = F.interpolate(h2, size=h1.shape[2:], mode="trilinear", align_corners=False)
+        u1 = self.d1(torch.cat([u1, h1], dim=1))
+        u0 = F.interpolate(u1, size=self.grid, mode="trilinear", align_corners=False)
+        density = self.d0(torch.cat([u0, h0], dim=1))
+        return density.mean(dim=(2, 3, 4)) + self.cond_head(c)
+
+
+BACKBONES: dict[str, Callable[..., nn.Module]] = {
+    "linear": LinearHead, "mlp": MLP, "cnn": ThesisCNN, "unet": ForceDensityUNet,
+}
+
+
+class ForceModel(nn.Module):
+    """Raw store arrays → (B, 6) force (N) and torque (N·m), normalisation included.
+
+    ``forward(velocity (B, H, Nx, Ny, Nz, 3), density (B, H, Nx, Ny, Nz), blade_velocity
+    (B, H, 3))``, float32, H = ``history`` steps oldest first.
+    """
+
+    def __init__(self, kind: str, grid: tuple[int, int, int], history: int = 1) -> None:
+        super().__init__()
+        if kind not in BACKBONES:
+            raise ValueError(f"model must be one of {list(BACKBONES)}, got {kind!r}")
+        self.kind, self.grid, self.history = kind, tuple(int(n) for n in grid), int(history)
+        c_in, cond = CHANNELS_PER_STEP * self.history, 3 * self.history
+        self.backbone = BACKBONES[kind](c_in, cond, self.grid)
+        for name, n in (("chan_mean", c_in), ("cond_mean", cond), ("y_mean", OUTPUTS)):
+            self.register_buffer(name, torch.zeros(n))
+        for name, n in (("chan_std", c_in), ("cond_std", cond), ("y_std", OUTPUTS)):
+            self.register_buffer(name, torch.ones(n))
+
+    def spec(self) -> dict[str, Any]:
+        """What it takes to rebuild this model before loading its state dict."""
+        return {"kind": self.kind, "grid": list(self.grid), "history": self.history}
+
+    @staticmethod
+    def raw_features(velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Unnormalised channels (B, 7H, X, Y, Z) and conditioning (B, 3H)."""
+        rel = velocity - blade_velocity[:, :, None, None, None, :]
+        rho = density.unsqueeze(-1)
+        ch = torch.cat([rel, rho, rho * rel], dim=-1)  # B, H, X, Y, Z, 7
+        b, h = ch.shape[:2]
+        ch = ch.permute(0, 1, 5, 2, 3, 4).reshape(b, h * CHANNELS_PER_STEP, *ch.shape[2:5])
+        return ch.contiguous(), blade_velocity.reshape(b, -1)
+
+    def inputs(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalised backbone inputs."""
+        x, c = self.raw_features(velocity, density, blade_velocity)
+        x = (x - self.chan_mean[None, :, None, None, None]) / self.chan_std[None, :, None, None, None]
+        return x, (c - self.cond_mean) / self.cond_std
+
+    def normalized(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> torch.Tensor:
+        """(B, 6) predictions in units of the training targets' standard deviation."""
+        return self.backbone(*self.inputs(velocity, density, blade_velocity))
+
+    def forward(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> torch.Tensor:
+        return self.normalized(velocity, density, blade_velocity) * self.y_std + self.y_mean

@@ -1,0 +1,228 @@
+"""Training: normalisation from the training block, Adam with a plateau schedule and early
+stopping on the validation block, or the closed-form ridge solution for ``linear``."""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
+from dozerlab.learn.models import CHANNELS_PER_STEP, ForceModel
+from dozerlab.runtime import DozerlabError
+
+EpochCallback = Callable[[int, float, float], None]
+
+
+class TrainingDiverged(DozerlabError):
+    """The loss became NaN or infinite."""
+
+
+@dataclass
+class TrainResult:
+    """A trained model with its loss history (normalised MSE per epoch) and timing."""
+
+    model: ForceModel
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+    samples: dict[str, int] = field(default_factory=dict)
+    seconds: float = 0.0
+    data_seconds: float = 0.0
+    model_uri: str = ""
+
+
+def device_for(name: str | None = None) -> torch.device:
+    """``name`` if given, else CUDA when present, else CPU."""
+    return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+class Batches:
+    """The samples as tensors on ``device``; ``get(sel)`` gathers one batch by index."""
+
+    def __init__(self, samples: Samples, device: torch.device) -> None:
+        self.samples, self.device = samples, device
+        self.velocity = torch.from_numpy(samples.velocity).to(device)
+        self.density = torch.from_numpy(samples.density).to(device)
+        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+        self.target = torch.from_numpy(samples.target).to(device)
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def get(self, sel: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(velocity, density, blade_velocity) with a history axis, and the (B, 6) targets."""
+        rows = torch.from_numpy(self.samples.rows(sel)).to(self.device)
+        cur = rows[:, -1]
+        return self.velocity[rows], self.density[rows], self.blade_velocity[rows], self.target[cur]
+
+    def chunks(self, size: int):  # type: ignore[no-untyped-def]
+        for start in range(0, len(self), size):
+            yield self.get(np.arange(start, min(start + size, len(self))))
+
+
+def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> None:
+    """Set the model's channel, conditioning and target statistics from the training samples."""
+    rows = np.unique(train.samples.rows(np.arange(len(train))))
+    s = torch.zeros(CHANNELS_PER_STEP, dtype=torch.float64, device=train.device)
+    s2, n = torch.zeros_like(s), 0
+    for start in range(0, rows.size, chunk):
+        r = torch.from_numpy(rows[start:start + chunk]).to(train.device)
+        x, _ = model.raw_features(train.velocity[r, None], train.density[r, None], train.blade_velocity[r, None])
+        x = x.double()
+        s += x.sum(dim=(0, 2, 3, 4))
+        s2 += (x * x).sum(dim=(0, 2, 3, 4))
+        n += x.shape[0] * x[0, 0].numel()
+    mean = s / n
+    std = torch.sqrt(torch.clamp(s2 / n - mean * mean, min=0.0))
+    r = torch.from_numpy(rows).to(train.device)
+    vb = train.blade_velocity[r].double()
+    y = train.target[torch.from_numpy(train.samples.index).to(train.device)].double()
+    h = model.history
+
+    def safe(sd: torch.Tensor) -> torch.Tensor:
+        # A channel constant over the training points (no lateral blade motion, say) is centred only.
+        return torch.where(sd > 1e-6 * (sd.max() + 1e-30), sd, torch.ones_like(sd))
+
+    with torch.no_grad():
+        model.chan_mean.copy_(mean.repeat(h))
+        model.chan_std.copy_(safe(std).repeat(h))
+        model.cond_mean.copy_(vb.mean(0).repeat(h))
+        model.cond_std.copy_(safe(vb.std(0, unbiased=False)).repeat(h))
+        model.y_mean.copy_(y.mean(0))
+        model.y_std.copy_(safe(y.std(0, unbiased=False)))
+
+
+@torch.no_grad()
+def mean_loss(model: ForceModel, data: Batches, chunk: int = 256) -> float:
+    """Mean squared error of the normalised targets over ``data``."""
+    model.eval()
+    total, n = 0.0, 0
+    for v, rho, vb, y in data.chunks(chunk):
+        err = model.normalized(v, rho, vb) - (y - model.y_mean) / model.y_std
+        total += float((err * err).sum())
+        n += err.numel()
+    return total / max(n, 1)
+
+
+def _guard(value: float, what: str) -> None:
+    if not math.isfinite(value):
+        raise TrainingDiverged(
+            f"training diverged: {what} is {value}; check the stores for non-finite values "
+            "or lower learn.learning_rate"
+        )
+
+
+@torch.no_grad()
+def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256) -> None:
+    """Closed-form ridge regression of the normalised targets: minimises mean squared error +
+    ``alpha``·‖w‖² (intercept unpenalised). Solved in the dual (N×N) when features outnumber
+    samples, so it cannot diverge."""
+    if alpha < 0:
+        raise ValueError(f"learn.ridge_alpha must be >= 0, got {alpha}")
+    head = model.backbone
+    rows, ys = [], []
+    for v, rho, vb, y in train.chunks(chunk):
+        rows.append(head.design(*model.inputs(v, rho, vb)).double())
+        ys.append(((y - model.y_mean) / model.y_std).double())
+    x, y = torch.cat(rows), torch.cat(ys)
+    n, d = x.shape
+    xm, ym = x.mean(0), y.mean(0)
+    x -= xm
+    lam = alpha * n + 1e-9 * n
+    if d > n:
+        gram = x @ x.T
+        gram.diagonal().add_(lam)
+        w = x.T @ torch.linalg.solve(gram, y - ym)
+    else:
+        a = x.T @ x
+        a.diagonal().add_(lam)
+        w = torch.linalg.solve(a, x.T @ (y - ym))
+    _guard(float(w.abs().max()), "the ridge solution")
+    head.fc.weight.copy_(w.T.float())
+    head.fc.bias.copy_((ym - xm @ w).float())
+
+
+def train_model(
+    kind: str,
+    stores: list[StoreData],
+    config: dict[str, Any],
+    *,
+    device: str | None = None,
+    on_epoch: EpochCallback | None = None,
+    progress: bool = True,
+) -> TrainResult:
+    """Train model ``kind`` on ``stores`` (the training points) with ``config['learn']``.
+
+    The last ``learn.validation_fraction`` of each store is held out for early stopping;
+    normalisation uses the rest. ``on_epoch(epoch, train_loss, val_loss)`` is called after
+    each epoch (losses: normalised MSE). Raises :class:`TrainingDiverged` on NaN/inf.
+    """
+    learn, seed = config["learn"], int(config.get("seed", 0))
+    torch.manual_seed(seed)
+    dev = device_for(device)
+    samples = concat(stores, learn["history"])
+    train_s, val_s = split_train_validation(samples, learn["validation_fraction"])
+    train, val = Batches(train_s, dev), Batches(val_s, dev)
+    model = ForceModel(kind, stores[0].grid, learn["history"]).to(dev)
+    fit_normalization(model, train)
+    result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
+    t0 = time.perf_counter()
+    if kind == "linear":
+        fit_ridge(model, train, learn["ridge_alpha"])
+        result.train_loss, result.val_loss = [mean_loss(model, train)], [mean_loss(model, val)]
+        _guard(result.val_loss[0], "the validation loss")
+        if on_epoch:
+            on_epoch(0, result.train_loss[0], result.val_loss[0])
+    else:
+        _fit_gradient(model, train, val, learn, seed, result, on_epoch, progress)
+    result.seconds = time.perf_counter() - t0
+    model.eval()
+    return result
+
+
+def _fit_gradient(
+    model: ForceModel, train: Batches, val: Batches, learn: dict[str, Any], seed: int,
+    result: TrainResult, on_epoch: EpochCallback | None, progress: bool,
+) -> None:
+    opt = torch.optim.Adam(model.parameters(), lr=learn["learning_rate"], weight_decay=learn["weight_decay"])
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, learn["patience"] // 3))
+    gen = np.random.default_rng(seed)
+    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    bar = tqdm(range(learn["epochs"]), desc=f"train {model.kind}", unit="epoch", disable=not progress)
+    for epoch in bar:
+        model.train()
+        order, total, count = gen.permutation(len(train)), 0.0, 0
+        for start in range(0, len(order), learn["batch_size"]):
+            t_data = time.perf_counter()
+            v, rho, vb, y = train.get(order[start:start + learn["batch_size"]])
+            result.data_seconds += time.perf_counter() - t_data
+            loss = torch.nn.functional.mse_loss(model.normalized(v, rho, vb), (y - model.y_mean) / model.y_std)
+            value = float(loss.detach())
+            _guard(value, f"the training loss at epoch {epoch}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total, count = total + value * y.shape[0], count + y.shape[0]
+        val_loss = mean_loss(model, val)
+        _guard(val_loss, f"the validation loss at epoch {epoch}")
+        result.train_loss.append(total / count)
+        result.val_loss.append(val_loss)
+        sched.step(val_loss)
+        bar.set_postfix(train=f"{total / count:.4f}", val=f"{val_loss:.4f}")
+        if on_epoch:
+            on_epoch(epoch, total / count, val_loss)
+        if val_loss < best:
+            best, best_state, waited, result.best_epoch = val_loss, copy.deepcopy(model.state_dict()), 0, epoch
+        else:
+            waited += 1
+            if waited >= learn["patience"]:
+                break
+    model.load_state_dict(best_state)

@@ -1,0 +1,31 @@
+"""What a step reports, and the error a diverging simulation raises."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dozerlab.runtime import DozerlabError
+
+
+class DivergenceError(DozerlabError, RuntimeError):
+    """The simulation blew up: a non-finite state or an overlap beyond ``max_overlap``."""
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """Summary of one step.
+
+    contacts: touching contacts (overlap > 0); speculative: near contacts (a gap smaller than
+    the contact margin) also handed to the solver; residual: RMS of the normal rows' last PGS
+    update, in m/s (→ 0 as the solver converges); max_overlap: largest overlap in m and
+    max_overlap_fraction the largest overlap over the smaller radius, at the start of the step;
+    step and time (s) after the step.
+    """
+
+    step: int
+    time: float
+    contacts: int
+    speculative: int
+    residual: float
+    max_overlap: float
+    max_overlap_fraction: float

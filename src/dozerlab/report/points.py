@@ -1,0 +1,146 @@
+"""Sweep points and the workflow's result paths, the one place that spells them.
+
+A sweep point is a scenario, a blade speed (m/s) and a cut depth (m). Its files are named
+``speed~{speed}_depth~{depth}`` with each number in its canonical form (:func:`fmt_number`):
+the shortest plain decimal that reads back as the same float, always with a decimal point
+(``1.0``, ``0.1``, ``0.05``). The Snakefile builds its targets with these functions, so the
+paths it asks for are the ones a user types, and :func:`parse_point` reads any of them back.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab.config import ConfigError
+
+ROLES = ("train", "interpolation", "extrapolation")
+#: What a speed or depth looks like in a path (the Snakefile's wildcard constraint).
+NUMBER_PATTERN = r"[0-9]+\.[0-9]+"
+_POINT = re.compile(rf"speed~(?P<speed>{NUMBER_PATTERN})_depth~(?P<depth>{NUMBER_PATTERN})(\.[A-Za-z]+)?")
+
+
+def fmt_number(value: float) -> str:
+    """The canonical spelling of a speed or depth in a path: ``1.0``, ``0.1``, ``0.00001``."""
+    value = float(value)
+    if not np.isfinite(value) or value < 0:
+        raise ValueError(f"a sweep number must be finite and >= 0, got {value}")
+    return np.format_float_positional(value, unique=True, trim="0")
+
+
+def check_canonical(name: str, text: str) -> float:
+    """Parse a speed/depth as spelled in a path; refuse non-canonical spellings.
+
+    ``speed~1`` and ``speed~1.00`` would be distinct files holding the same run, so only
+    :func:`fmt_number`'s spelling is accepted; the error names the spelling to use.
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{name} '{text}' is not a number") from None
+    if fmt_number(value) != text:
+        raise ValueError(f"{name} '{text}' is not in canonical form; ask for {name}~{fmt_number(value)}")
+    return value
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One simulation of the sweep: scenario, blade speed (m/s), cut depth (m) and its role."""
+
+    scenario: str
+    speed: float
+    depth: float
+    role: str = "train"
+
+    @property
+    def name(self) -> str:
+        """``speed~{speed}_depth~{depth}``, the file stem of this point's outputs."""
+        return point_name(self.speed, self.depth)
+
+    @property
+    def key(self) -> tuple[str, str]:
+        """(scenario, name): identifies the point's files whatever its role."""
+        return self.scenario, self.name
+
+
+def point_name(speed: float, depth: float) -> str:
+    """The file stem of a sweep point, e.g. ``speed~1.0_depth~0.1``."""
+    return f"speed~{fmt_number(speed)}_depth~{fmt_number(depth)}"
+
+
+def parse_point(path: str | Path, role: str = "train") -> SweepPoint:
+    """The sweep point of a result path ``…/{scenario}/speed~{speed}_depth~{depth}.{ext}``."""
+    p = Path(path)
+    m = _POINT.fullmatch(p.name)
+    if m is None:
+        raise ValueError(f"path '{path}' is not named speed~{{speed}}_depth~{{depth}}[.ext]")
+    return SweepPoint(p.parent.name, float(m["speed"]), float(m["depth"]), role)
+
+
+def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
+    """Every point of the validated config's sweep: the training grid, then the held-out points.
+
+    Raises :class:`~dozerlab.config.ConfigError` when a held-out point is also a training point
+    (the models would see it in training) or is listed twice.
+    """
+    sweep = cfg["sweep"]
+    points = [
+        SweepPoint(s, float(v), float(d), "train")
+        for s in sweep["scenarios"]
+        for v in sweep["speeds"]
+        for d in sweep["depths"]
+    ]
+    seen = {p.key: "sweep grid" for p in points}
+    for role in ("interpolation", "extrapolation"):
+        for i, item in enumerate(sweep[role]):
+            point = SweepPoint(item["scenario"], float(item["speed"]), float(item["depth"]), role)
+            if point.key in seen:
+                raise ConfigError(
+                    f"config field 'sweep.{role}.{i}': {point.scenario} {point.name} is already in the "
+                    f"{seen[point.key]} (allowed: a point outside the training grid, listed once)"
+                )
+            seen[point.key] = f"sweep.{role}"
+            points.append(point)
+    return points
+
+
+def by_role(points: Iterable[SweepPoint], role: str) -> list[SweepPoint]:
+    """The points of one role (``train``, ``interpolation`` or ``extrapolation``)."""
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got '{role}'")
+    return [p for p in points if p.role == role]
+
+
+def bed_path(results: str | Path, scenario: str) -> Path:
+    """``results/beds/{scenario}.npz``."""
+    return Path(results) / "beds" / f"{scenario}.npz"
+
+
+def trajectory_path(results: str | Path, point: SweepPoint, ext: str = "csv") -> Path:
+    """``results/trajectories/{scenario}/speed~{speed}_depth~{depth}.{ext}`` (csv or png)."""
+    return Path(results) / "trajectories" / point.scenario / f"{point.name}.{ext}"
+
+
+def field_path(results: str | Path, point: SweepPoint) -> Path:
+    """``results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr``."""
+    return Path(results) / "fields" / point.scenario / f"{point.name}.zarr"
+
+
+def simulate_benchmark_path(results: str | Path, point: SweepPoint) -> Path:
+    """Snakemake's benchmark record (wall time, memory) of the point's simulation job."""
+    return Path(results) / "benchmarks" / "simulate" / point.scenario / f"{point.name}.tsv"
+
+
+def model_path(results: str | Path, model: str) -> Path:
+    """``results/models/{model}``: an MLflow pyfunc model directory."""
+    return Path(results) / "models" / model
+
+
+def validation_path(results: str | Path, model: str) -> Path:
+    """``results/validation/{model}.json``: held-out metrics of one model."""
+    return Path(results) / "validation" / f"{model}.json"

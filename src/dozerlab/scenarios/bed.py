@@ -1,0 +1,108 @@
+"""The settled particle bed of a scenario and its file format (``results/beds/{scenario}.npz``).
+
+A bed file is an uncompressed-array ``.npz`` that ``np.load(path, allow_pickle=False)`` reads:
+the particle state arrays, the settle log arrays, and ``metadata``, a JSON string with the
+scalars and the material (density, friction, …) the bed was built with.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab import __version__
+from dozerlab.runtime import DozerlabError, atomic_output
+
+SCENARIOS: tuple[str, ...] = ("hill", "step")
+
+_ARRAYS = ("positions", "radii", "masses", "velocities", "angular_velocities",
+           "settle_time", "settle_kinetic_energy", "settle_contacts")
+
+
+@dataclass
+class Bed:
+    """A settled particle bed.
+
+    Particles (N of them) in id order: ``positions`` (N, 3) m, ``radii`` (N,) m, ``masses`` (N,) kg,
+    ``velocities`` and ``angular_velocities`` (N, 3) in m/s and rad/s. The bed spans
+    x ∈ [0, length], y ∈ [-width/2, width/2] on the ground z = 0, inside the walls of
+    :func:`dozerlab.scenarios.build.make_world`. The settle log samples the build every
+    ``bed.log_every`` steps: time (s), mean kinetic energy per particle (J), contact count.
+    """
+
+    scenario: str
+    length: float
+    width: float
+    positions: np.ndarray
+    radii: np.ndarray
+    masses: np.ndarray
+    velocities: np.ndarray
+    angular_velocities: np.ndarray
+    material: dict[str, float]
+    seed: int
+    settle_time: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    settle_kinetic_energy: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    settle_contacts: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"scenario must be one of {list(SCENARIOS)}, got {self.scenario!r}")
+        n = len(self.radii)
+        for name in ("positions", "velocities", "angular_velocities"):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)
+            if arr.shape != (n, 3):
+                raise ValueError(f"Bed.{name} must have shape ({n}, 3), got {arr.shape}")
+            setattr(self, name, arr)
+        for name in ("radii", "masses", "settle_time", "settle_kinetic_energy"):
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        self.settle_contacts = np.ascontiguousarray(self.settle_contacts, dtype=np.int64)
+        if self.masses.shape != (n,):
+            raise ValueError(f"Bed.masses must have shape ({n},), got {self.masses.shape}")
+
+    @property
+    def count(self) -> int:
+        """Number of particles."""
+        return len(self.radii)
+
+    def kinetic_energy_per_particle(self) -> float:
+        """Mean translational + rotational kinetic energy per particle in J (solid spheres)."""
+        if self.count == 0:
+            return 0.0
+        lin = 0.5 * self.masses * np.einsum("ij,ij->i", self.velocities, self.velocities)
+        inertia = 0.4 * self.masses * self.radii**2
+        rot = 0.5 * inertia * np.einsum("ij,ij->i", self.angular_velocities, self.angular_velocities)
+        return float((lin + rot).mean())
+
+    def save(self, path: str | Path) -> None:
+        """Write the bed to ``path`` (.npz) atomically."""
+        meta = {
+            "scenario": self.scenario, "length": self.length, "width": self.width,
+            "material": self.material, "seed": self.seed, "info": self.info,
+            "dozerlab_version": __version__,
+        }
+        arrays = {name: getattr(self, name) for name in _ARRAYS}
+        with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, metadata=np.array(json.dumps(meta)), **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Bed:
+        """Read a bed written by :meth:`save` (no pickled data is ever executed)."""
+        path = Path(path)
+        if not path.is_file():
+            raise DozerlabError(f"bed file not found: {path}")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["metadata"]))
+                arrays = {name: data[name] for name in _ARRAYS}
+        except (KeyError, ValueError, OSError) as exc:
+            raise DozerlabError(f"{path} is not a dozerlab bed file: {exc}") from exc
+        return cls(
+            scenario=meta["scenario"], length=float(meta["length"]), width=float(meta["width"]),
+            material=dict(meta["material"]), seed=int(meta["seed"]), info=dict(meta.get("info", {})),
+            **arrays,
+        )

@@ -1,0 +1,93 @@
+"""A small end-to-end run: tiny bed, short trajectory, field store, plots, divergence handling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dozerlab.cli import main
+from dozerlab.config import load_config
+from dozerlab.fields.store import open_store
+
+CONFIG = {
+    "solver": {"dt": 0.01, "iterations": 30},
+    "material": {"youngs_modulus": 0.0},
+    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
+    "scenarios": {"hill": {"goal_height": 0.08}},
+    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
+    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
+    "sampling": {"length": 0.3, "below_edge": 0.05, "bins": [6, 5, 4], "every": 2, "chunk_steps": 8, "vtk_every": 10},
+}
+
+
+def _lattice_bed(config: dict):
+    """A settled-looking bed: a cubic lattice of touching spheres 0.18 m high (≈ 200 particles)."""
+    from dozerlab.scenarios.bed import Bed
+
+    r = 0.03
+    xs = np.arange(r, 0.8 - r + 1e-9, 2 * r)
+    ys = np.arange(-0.18 + r, 0.18 - r + 1e-9, 2 * r)
+    zs = np.arange(r, 0.18, 2 * r)
+    pos = np.array(np.meshgrid(xs, ys, zs, indexing="ij")).reshape(3, -1).T
+    radii = np.full(len(pos), r)
+    zeros = np.zeros_like(pos)
+    return Bed(scenario="hill", length=0.8, width=0.36, positions=pos, radii=radii,
+               masses=config["material"]["density"] * 4 / 3 * np.pi * radii**3, velocities=zeros,
+               angular_velocities=zeros, material=dict(config["material"]), seed=1)
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    from dozerlab.scenarios.trajectory import plan_trajectory
+
+    tmp = tmp_path_factory.mktemp("run")
+    config = load_config(CONFIG)
+    bed = _lattice_bed(config)
+    bed.save(tmp / "bed.npz")
+    traj = plan_trajectory(bed, 0.5, 0.06, config)
+    traj.save_csv(tmp / "speed~0.5_depth~0.06.csv")
+    return tmp, bed, traj
+
+
+def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
+    import json
+
+    tmp, bed, traj = inputs
+    out = tmp / "f.zarr"
+    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(tmp / "speed~0.5_depth~0.06.csv"),
+            "--config", json.dumps(CONFIG), "--out", str(out), "--threads", "1", "--vtk-dir", str(tmp / "vtk"),
+            "--plots", str(tmp / "plots")]
+    assert main(argv) == 0
+    ds = open_store(out)
+    assert ds.sizes["time"] == traj.steps // 2
+    assert (ds.sizes["x"], ds.sizes["y"], ds.sizes["z"]) == (6, 5, 4)
+    assert ds.attrs["scenario"] == "hill" and ds.attrs["speed"] == 0.5 and ds.attrs["depth"] == 0.06
+    assert ds.attrs["particle_count"] == bed.count and ds.attrs["sample_every"] == 2
+    assert json.loads(ds.attrs["config"])["sampling"]["bins"] == [6, 5, 4]
+    np.testing.assert_allclose(ds["time"].values, traj.time[2::2][: ds.sizes["time"]])
+    np.testing.assert_allclose(ds["blade_position"].values, traj.position[2::2][: ds.sizes["time"]], atol=1e-6)
+    force = ds["force"].values
+    assert np.isfinite(force).all() and np.abs(force).max() > 0  # the blade met the bed
+    rho = ds["density"].values
+    assert rho.max() > 0 and np.isfinite(ds["velocity"].values).all()
+    # the blade pushes material: its mean force on the blade points backwards (−x) once it cuts
+    assert force[len(force) // 2:, 0].mean() < 0
+    assert len(list((tmp / "vtk").glob("particles_*.vtu"))) == traj.steps // 10
+    assert {"force.png", "slice_000000.png"} <= {p.name for p in (tmp / "plots").iterdir()}
+
+
+@pytest.mark.parametrize(("section", "message"), [
+    ({"dt": 0.02}, "differs from solver.dt"),
+    ({"max_overlap": 1e-4}, "simulation diverged at step"),
+])
+def test_bad_runs_are_refused_without_store(inputs, capsys, section, message):
+    import json
+
+    tmp, _, _ = inputs
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["solver"].update(section)
+    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(tmp / "speed~0.5_depth~0.06.csv"),
+            "--config", json.dumps(cfg), "--out", str(tmp / "g.zarr")]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp / "g.zarr").exists()

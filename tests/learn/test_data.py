@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+import torch
+
+from dozerlab.learn.data import check_grid, concat, load_store, split_train_validation
+from dozerlab.learn.models import ForceModel
+from dozerlab.learn.train import Batches, fit_normalization
+from dozerlab.learn.validate import check_no_leak
+from dozerlab.runtime import DozerlabError
+
+from .conftest import in_memory
+
+
+def test_split_is_a_trailing_block_per_store_and_history_stays_in_store():
+    stores = [in_memory(0.5, 0.05, steps=40, seed=1), in_memory(1.5, 0.15, steps=60, seed=2)]
+    samples = concat(stores, history=4)
+    assert len(samples) == (40 - 3) + (60 - 3)
+    train, val = split_train_validation(samples, 0.25)
+    for k, steps in enumerate((40, 60)):
+        t = train.index[train.store_of == k]
+        v = val.index[val.store_of == k]
+        assert t.max() < v.min() and v.size == round(0.25 * (steps - 3))
+    rows = samples.rows(np.arange(len(samples)))
+    starts = np.array([0, 40])
+    assert all(((r >= starts[s]) & (r < starts[s] + (40, 60)[s])).all() for r, s in zip(rows, samples.store_of))
+
+
+def test_normalisation_uses_training_block_only():
+    store = in_memory(1.0, 0.1, steps=50, seed=3)
+    train, val = split_train_validation(concat([store], 1), 0.2)
+    store.target[val.index] = 1e9  # only the validation block is poisoned
+    store.density[val.index] = 1e9
+    model = ForceModel("linear", store.grid)
+    fit_normalization(model, Batches(train, torch.device("cpu")))
+    assert float(model.y_mean.abs().max()) < 1e5
+    assert float(model.chan_mean.abs().max()) < 1e5
+
+
+def test_held_out_point_that_was_trained_on_is_refused():
+    meta = {"train_keys": [("hill", 0.5, 0.05)], "train_sources": []}
+    check_no_leak(meta, [in_memory(1.0, 0.1)])
+    with pytest.raises(DozerlabError, match="trained on"):
+        check_no_leak(meta, [in_memory(0.5, 0.05)])
+
+
+def test_stores_round_trip_and_grid_mismatch_is_clear(store_files):
+    s = load_store(store_files["train"][0])
+    assert s.velocity.dtype == np.float32 and s.velocity.flags.c_contiguous
+    assert s.grid == (8, 6, 4) and s.point["scenario"] == "hill"
+    other = load_store(store_files["other_grid"][0])
+    with pytest.raises(DozerlabError, match=r"\(6, 6, 4\) grid but the model expects \(8, 6, 4\)"):
+        check_grid([s, other])
+    with pytest.raises(DozerlabError, match="grid"):
+        concat([s, other], 1)
+
+
+def test_missing_array_is_named(store_files, tmp_path):
+    import xarray as xr
+
+    broken = tmp_path / "broken.zarr"
+    xr.open_zarr(store_files["train"][0]).drop_vars("force").to_zarr(broken)
+    with pytest.raises(ValueError, match="force"):
+        load_store(broken)

@@ -1,0 +1,73 @@
+import json
+
+import mlflow
+import numpy as np
+import pytest
+
+from dozerlab.cli import main
+from dozerlab.learn import pyfunc
+from dozerlab.learn.data import load_store
+from dozerlab.learn.jobs import train_job
+from dozerlab.runtime import DozerlabError
+
+
+@pytest.fixture(scope="module")
+def tracking(tmp_path_factory):
+    """One SQLite tracking store for the module (creating its tables takes seconds)."""
+    root = tmp_path_factory.mktemp("tracking")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
+        mp.setenv("DOZERLAB_MLFLOW", "1")
+        mp.delenv("DOZERLAB_PARENT_RUN_ID", raising=False)
+        yield root
+
+
+def _inputs(store):
+    return {"velocity": store.velocity, "density": store.density, "blade_velocity": store.blade_velocity}
+
+
+def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_files, config):
+    config["learn"]["epochs"] = 2
+    config["mlflow"]["enabled"] = True
+    out = tracking / "models" / "cnn"
+    result = train_job("cnn", store_files["train"], config, out, progress=False)
+    held_out = _inputs(load_store(store_files["interpolation"][0]))
+    expected = pyfunc.predict_arrays(result.model, held_out)
+    for uri in (result.model_uri, str(out)):
+        got = mlflow.pyfunc.load_model(uri).predict(held_out)
+        assert list(got.columns) == ["force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z"]
+        np.testing.assert_allclose(got.to_numpy(), expected, rtol=1e-5, atol=1e-4)
+    runs = mlflow.search_runs(experiment_names=["dozerlab"], filter_string="tags.model = 'cnn'")
+    assert list(runs["tags.rule"]) == ["train"]
+    history = mlflow.MlflowClient().get_metric_history(runs.loc[0, "run_id"], "val_loss")
+    assert [m.step for m in history] == [0, 1]
+
+
+def test_cli_train_validate_evaluate(tracking, store_files, capsys):
+    files = [str(p) for p in store_files["train"]]
+    out = tracking / "models" / "linear"
+    assert main(["train", "--model", "linear", "--train", *files, "--config", "{}", "--out", str(out), "--threads", "1"]) == 0
+    report = tracking / "validation" / "linear.json"
+    argv = ["validate", "--model", str(out), "--interpolation", str(store_files["interpolation"][0]),
+            "--extrapolation", str(store_files["extrapolation"][0]), "--out", str(report)]
+    assert main(argv) == 0
+    result = json.loads(report.read_text())
+    assert set(result["groups"]) == {"interpolation", "extrapolation"}
+    assert result["groups"]["interpolation"]["overall"]["force_x"]["rel_rmse"] < 0.2
+    fragment = report.with_suffix(".html").read_text()
+    assert fragment.startswith("<section") and 'src="linear/parity.png"' in fragment
+    assert (tracking / "validation" / "linear" / "interpolation_00.png").is_file()
+    assert main(["evaluate", "--model", str(out), str(store_files["interpolation"][0])]) == 0
+    assert "overall" in capsys.readouterr().out
+    # A store of another grid, and a held-out point that was a training point, fail clearly.
+    assert main(["evaluate", "--model", str(out), str(store_files["other_grid"][0])]) == 2
+    assert "grid but the model expects (8, 6, 4)" in capsys.readouterr().err
+    assert main([*argv[:4], files[0], "--out", str(tracking / "leak.json")]) == 2
+    assert "trained on" in capsys.readouterr().err
+
+
+def test_pyfunc_input_of_wrong_grid_is_refused(store_files):
+    model = pyfunc.ForceModel("linear", (6, 6, 4))
+    with pytest.raises(DozerlabError, match="trained on a \\(6, 6, 4\\) grid"):
+        pyfunc.predict_arrays(model, _inputs(load_store(store_files["train"][0])))

@@ -1,0 +1,185 @@
+"""Physics checks against analytic answers, on scenes of a handful of spheres."""
+
+import numba
+import numpy as np
+import pytest
+
+from dozerlab.ndem import World
+
+G = 9.81
+R = 0.05
+
+
+def _hertz_overlap(weight: float, youngs: float, nu: float, rstar: float) -> float:
+    estar = youngs / (2 * (1 - nu**2))
+    return (weight / (4 / 3 * estar * np.sqrt(rstar))) ** (2 / 3)
+
+
+@pytest.mark.parametrize("youngs", [1.0e8, 1.0e6])
+def test_resting_sphere_overlap_matches_hertz(youngs):
+    w = World(youngs_modulus=youngs)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R]], radius=R)
+    w.step(100)
+    expected = _hertz_overlap(w.masses[0] * G, youngs, 0.3, R)
+    assert R - w.positions[0, 2] == pytest.approx(expected, rel=0.01)
+    assert w.last_stats.max_overlap == pytest.approx(expected, rel=0.01)
+    np.testing.assert_allclose(w.force_on(0), [0.0, 0.0, -w.masses[0] * G], rtol=1e-6)
+
+
+def test_stiff_contact_has_no_overlap():
+    w = World(youngs_modulus=0.0)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R + 0.02]], radius=R)
+    w.step(100)
+    assert abs(R - w.positions[0, 2]) < 1e-6 * R
+    assert np.abs(w.velocities).max() < 1e-9
+
+
+def _incline(theta: float, rolling: float, friction: float = 0.8) -> tuple[World, np.ndarray]:
+    """A sphere touching a plane tilted by theta about y; returns the world and downhill unit."""
+    n = np.array([np.sin(theta), 0.0, np.cos(theta)])
+    w = World()
+    w.add_plane(normal=n, friction=friction)
+    w.add_spheres([R * n], radius=R, rolling_resistance=rolling)
+    return w, np.array([np.cos(theta), 0.0, -np.sin(theta)])
+
+
+def test_sphere_on_incline_below_rolling_threshold_stays_put():
+    theta = np.deg2rad(10.0)  # tan θ = 0.176 < μ_r = 0.3
+    w, down = _incline(theta, rolling=0.3)
+    w.step(20)  # sink to the Hertz overlap
+    start = w.positions[0] @ down
+    w.step(100)
+    assert abs(w.positions[0] @ down - start) < 1e-6
+    assert np.abs(w.velocities).max() < 1e-5
+
+
+@pytest.mark.parametrize("rolling", [0.0, 0.1])
+def test_sphere_rolls_down_incline_with_the_analytic_acceleration(rolling):
+    theta = np.deg2rad(20.0)  # tan θ = 0.36 > μ_r; μ = 0.8 keeps it rolling without slip
+    w, down = _incline(theta, rolling=rolling)
+    w.step(50)
+    v1 = w.velocities[0] @ down
+    w.step(50)
+    v2 = w.velocities[0] @ down
+    expected = G * (np.sin(theta) - rolling * np.cos(theta)) / 1.4
+    assert (v2 - v1) / 0.5 == pytest.approx(expected, rel=0.02)
+    omega = w.angular_velocities[0, 1]
+    assert omega * R == pytest.approx(v2, rel=0.02)  # rolling without slipping
+
+
+def test_sliding_box_like_sphere_decelerates_by_coulomb_friction():
+    """A spinning-free sphere thrown along flat ground with μ_r large: pure sliding first."""
+    w = World(iterations=100)
+    w.add_plane(friction=0.2)
+    w.add_spheres([[0.0, 0.0, R]], radius=R, rolling_resistance=0.0,
+                  velocities=[[2.0, 0.0, 0.0]])
+    w.step(5)
+    v1 = w.velocities[0, 0]
+    w.step(5)
+    v2 = w.velocities[0, 0]
+    assert (v1 - v2) / 0.05 == pytest.approx(0.2 * G, rel=0.02)
+
+
+def test_stack_and_pyramid_stay_stacked():
+    w = World()
+    w.add_plane()
+    column = [[0.0, 0.0, R + 2 * R * k] for k in range(5)]
+    s = 2 * R
+    base = [[1.0, 0.0, R], [1.0 + s, 0.0, R], [1.0 + s / 2, s * np.sqrt(3) / 2, R]]
+    top = [[1.0 + s / 2, s * np.sqrt(3) / 6, R + s * np.sqrt(2 / 3)]]
+    w.add_spheres(np.array(column + base + top), radius=R)
+    start = w.positions
+    w.step(200)
+    assert np.abs(w.positions[:, :2] - start[:, :2]).max() < 1e-3
+    assert np.abs(w.positions[5:, 2] - start[5:, 2]).max() < 0.01 * R
+    weight = w.masses[0] * G
+    sink = _hertz_overlap(5 * weight, 1.0e8, 0.3, R) + sum(
+        _hertz_overlap(k * weight, 1.0e8, 0.3, R / 2) for k in range(1, 5))
+    assert start[4, 2] - w.positions[4, 2] == pytest.approx(sink, rel=0.05)
+    assert np.abs(w.velocities).max() < 1e-3
+
+
+def test_collision_conserves_momentum_and_loses_energy():
+    w = World(gravity=(0.0, 0.0, 0.0))
+    w.add_spheres([[0.0, 0.0, 0.0], [0.3, 0.02, 0.0]], radius=[0.05, 0.07],
+                  velocities=[[1.0, 0.0, 0.0], [-0.5, 0.0, 0.0]])
+    m = w.masses
+    inertia = 0.4 * m * w.radii**2
+
+    def momentum():
+        return (m[:, None] * w.velocities).sum(axis=0)
+
+    def energy():
+        return 0.5 * (m * (w.velocities**2).sum(1) + inertia * (w.angular_velocities**2).sum(1)).sum()
+
+    p0, e0 = momentum(), energy()
+    met = 0
+    for _ in range(40):
+        stats = w.step()
+        met += stats.contacts + stats.speculative
+    assert met > 0
+    np.testing.assert_allclose(momentum(), p0, atol=1e-12)
+    assert energy() <= e0 * (1 + 1e-9)
+    # No longer approaching: the closing speed (1.5 m/s) is gone.
+    d = w.positions[1] - w.positions[0]
+    assert (w.velocities[1] - w.velocities[0]) @ d / np.linalg.norm(d) > -1e-9
+
+
+def _pile(n_side: int = 4) -> tuple[World, int]:
+    w = World()
+    w.add_plane(friction=0.5)
+    k = np.arange(n_side)
+    grid = np.stack(np.meshgrid(k, k, k, indexing="ij"), -1).reshape(-1, 3) * 2.05 * R
+    w.add_spheres(grid + [0.2, -0.15, R + 0.001], radius=R)
+    blade = w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True)
+    return w, blade
+
+
+def test_blade_pushing_a_pile_feels_a_resisting_force():
+    w, blade = _pile()
+    w.step(30)  # settle
+    w.set_velocity(blade, (0.5, 0.0, 0.0))
+    fx = []
+    for _ in range(40):
+        w.step()
+        fx.append(w.force_on(blade)[0])
+    weight = w.masses.sum() * G
+    push = -np.mean(fx[-20:])
+    assert 0.05 * weight < push < 5.0 * weight
+    assert np.all(w.positions[:, 0] > w.body_position(blade)[0])
+
+
+def test_more_iterations_reduce_the_residual():
+    res = []
+    for iterations in (5, 80):
+        w, _ = _pile()
+        w.iterations = iterations
+        w.warm_start = False
+        res.append(w.step(10).residual)
+    assert res[1] < 0.5 * res[0]
+
+
+def test_runs_are_deterministic():
+    runs = []
+    for _ in range(2):
+        w, blade = _pile(3)
+        w.set_velocity(blade, (0.5, 0.0, 0.0))
+        w.step(20)
+        runs.append((w.positions, w.force_on(blade)))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs NUMBA_NUM_THREADS >= 2")
+def test_result_does_not_depend_on_thread_count():
+    runs = []
+    for threads in (1, 2):
+        numba.set_num_threads(threads)
+        w, blade = _pile(4)
+        w.slabs = 4
+        w.set_velocity(blade, (0.5, 0.0, 0.0))
+        w.step(10)
+        runs.append(w.positions)
+    np.testing.assert_array_equal(runs[0], runs[1])

@@ -1,0 +1,88 @@
+import numpy as np
+import pytest
+
+from dozerlab.config import load_config
+from dozerlab.scenarios import add_blade, build_bed, make_world, start_tip
+from dozerlab.scenarios.heightfield import height_field
+
+SMALL = {
+    "bed": {"length": 0.6, "width": 0.2, "radius": 0.025, "iterations": 15, "max_settle_time": 8.0,
+            "emitter_speed": 2.0, "settle_kinetic_energy": 2.0e-4},
+    "scenarios": {
+        "hill": {"base_height": 0.04, "peak_height": 0.2, "center": 0.5, "half_width": 0.3, "goal_height": 0.08},
+        "step": {"high_height": 0.14, "low_height": 0.04, "edge": 0.5, "goal_height": 0.08},
+    },
+    "blade": {"width": 0.2, "height": 0.15, "thickness": 0.02},
+    "trajectory": {"subdivisions": [60, 4], "end_margin": 0.1},
+}
+
+
+@pytest.fixture(scope="module")
+def small_config():
+    return load_config(SMALL)
+
+
+@pytest.fixture(scope="module")
+def beds(small_config):
+    return {s: build_bed(s, small_config, progress=False) for s in ("hill", "step")}
+
+
+def profile(bed):
+    return height_field(bed.positions, bed.radii, bed.length, bed.width, (12, 4))[1].mean(axis=1)
+
+
+@pytest.mark.parametrize("scenario", ["hill", "step"])
+def test_small_bed_settles_inside_the_domain(beds, small_config, scenario):
+    bed = beds[scenario]
+    assert 60 < bed.count < 400
+    ke = bed.settle_kinetic_energy
+    assert bed.kinetic_energy_per_particle() < small_config["bed"]["settle_kinetic_energy"]
+    assert ke[-1] < 0.1 * ke.max()
+    p, r = bed.positions, bed.radii
+    tol = 0.3 * r
+    assert np.all(p[:, 0] - r > -tol) and np.all(p[:, 0] + r < bed.length + tol)
+    assert np.all(np.abs(p[:, 1]) + r < bed.width / 2 + tol)
+    assert np.all(p[:, 2] - r > -tol)
+    r0, spread = small_config["bed"]["radius"], small_config["bed"]["radius_dispersion"]
+    assert r.min() >= r0 * (1 - spread) and r.max() <= r0 * (1 + spread) and r.std() > 0
+    assert bed.settle_contacts[-1] > bed.count
+
+
+def test_hill_is_higher_in_the_middle_and_step_on_one_side(beds):
+    h = profile(beds["hill"])
+    assert 3 <= int(np.argmax(h)) <= 8
+    assert h.max() > 1.4 * max(h[:3].mean(), h[-3:].mean())
+    h = profile(beds["step"])
+    assert h[:6].mean() > 1.5 * h[6:].mean()
+
+
+def test_build_is_deterministic_for_a_seed():
+    tiny = load_config({**SMALL, "bed": {**SMALL["bed"], "length": 0.25, "width": 0.12}})
+    first, again = (build_bed("step", tiny, progress=False) for _ in range(2))
+    np.testing.assert_array_equal(again.positions, first.positions)
+    np.testing.assert_array_equal(again.radii, first.radii)
+    other = build_bed("step", {**tiny, "seed": tiny["seed"] + 1}, progress=False)
+    assert other.positions.shape != first.positions.shape or not np.array_equal(other.positions, first.positions)
+
+
+def test_make_world_restores_the_bed_and_takes_the_blade(beds, small_config):
+    bed = beds["step"]
+    world, ids = make_world(bed, small_config)
+    assert set(ids) == {"ground", "wall_start", "wall_end", "wall_left", "wall_right"}
+    np.testing.assert_array_equal(world.positions, bed.positions)
+    np.testing.assert_array_equal(world.velocities, bed.velocities)
+    np.testing.assert_allclose(world.masses, bed.masses)
+    tip = start_tip(bed, small_config)
+    blade = add_blade(world, tip, small_config)
+    world.set_velocity(blade, [0.5, 0.0, 0.0])
+    world.step(5)
+    # The bed stays in place (it only creeps) while the blade travels behind the start wall.
+    assert np.abs(world.positions - bed.positions).max() < 0.5 * bed.radii.min()
+    g = small_config["blade"]
+    np.testing.assert_allclose(world.body_position(blade),
+                               tip + [5 * 0.005 - g["thickness"] / 2, 0.0, g["height"] / 2], atol=1e-12)
+
+
+def test_unknown_scenario_is_refused(small_config):
+    with pytest.raises(ValueError, match="one of"):
+        build_bed("dune", small_config, progress=False)

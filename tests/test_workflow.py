@@ -1,0 +1,168 @@
+"""The whole workflow, for real: the quick sweep in a temporary directory, shared by the checks.
+
+One run of ``snakemake --cores 2 --configfile config/quick.yaml`` builds beds, trajectories,
+field stores, models, validations and the report while MLflow records them; the checks read
+what it left, then rerun it (nothing to do, nothing logged), kill a simulation half-way and
+build it again, and feed it an invalid config.
+"""
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from dozerlab.config import load_config
+from dozerlab.report import points as P
+from dozerlab.tracking import PARENT_ENV
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parents[1]
+QUICK = REPO / "config" / "quick.yaml"
+CFG = load_config(QUICK)
+POINTS = P.sweep_points(CFG)
+MODELS = CFG["learn"]["models"]
+
+
+def snakemake_cmd(workdir: Path, *args: str, configfile: Path = QUICK) -> list[str]:
+    return [sys.executable, "-m", "snakemake", *args, "--cores", "2", "-s", str(REPO / "Snakefile"),
+            "--directory", str(workdir), "--configfile", str(configfile)]
+
+
+def clean_env() -> dict[str, str]:
+    """The environment without tracking settings of the session running the tests."""
+    drop = {PARENT_ENV, "MLFLOW_TRACKING_URI", "DOZERLAB_MLFLOW", "MLFLOW_EXPERIMENT_NAME"}
+    return {k: v for k, v in os.environ.items() if k not in drop}
+
+
+def snakemake(workdir: Path, *args: str, configfile: Path = QUICK) -> subprocess.CompletedProcess:
+    return subprocess.run(snakemake_cmd(workdir, *args, configfile=configfile), env=clean_env(),
+                          capture_output=True, text=True, timeout=900)
+
+
+def runs(workdir: Path):
+    """Every run of the workdir's MLflow store, as a list of mlflow Run objects."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=f"sqlite:///{workdir / 'mlflow.db'}")
+    exp = client.get_experiment_by_name(CFG["mlflow"]["experiment"])
+    return client, client.search_runs([exp.experiment_id], max_results=1000)
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> Path:
+    workdir = tmp_path_factory.mktemp("quick")
+    done = snakemake(workdir)
+    assert done.returncode == 0, done.stderr[-5000:]
+    return workdir
+
+
+def test_stores_open_and_nothing_half_written_is_left(quick):
+    for point in POINTS:
+        ds = xr.open_zarr(P.field_path(quick / "results", point))
+        assert ds["velocity"].dims == ("time", "x", "y", "z", "component")
+        assert ds.sizes["time"] > 0 and np.isfinite(ds["force"].values).all()
+        assert (ds.attrs["scenario"], ds.attrs["speed"], ds.attrs["depth"]) == (point.scenario, point.speed, point.depth)
+    assert not list((quick / "results").rglob("*.tmp-*"))
+
+
+def test_models_reload_through_mlflow(quick):
+    import mlflow
+
+    ds = xr.open_zarr(P.field_path(quick / "results", POINTS[0])).isel(time=slice(0, 3))
+    arrays = {k: ds[k].values for k in ("velocity", "density", "blade_velocity")}
+    for model in MODELS:
+        loaded = mlflow.pyfunc.load_model(str(P.model_path(quick / "results", model)))
+        pred = loaded.predict(arrays)
+        assert pred.shape == (3, 6) and np.isfinite(pred.to_numpy()).all()
+
+
+def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
+    client, all_runs = runs(quick)
+    parents = [r for r in all_runs if r.data.tags.get("rule") == "workflow"]
+    assert len(parents) == 1
+    parent = parents[0]
+    assert parent.info.status == "FINISHED"
+    assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
+    children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
+    rules = sorted(r.data.tags["rule"] for r in children)
+    expected = {"bed": 1, "simulate": len(POINTS), "train": len(MODELS), "validate": len(MODELS)}
+    assert {rule: rules.count(rule) for rule in expected} == expected
+    assert len(all_runs) == 1 + len(children)
+    for child in children:
+        assert child.info.status == "FINISHED" and child.data.metrics, child.data.tags["rule"]
+    sims = {(r.data.tags["scenario"], float(r.data.tags["speed"]), float(r.data.tags["depth"]))
+            for r in children if r.data.tags["rule"] == "simulate"}
+    assert sims == {(p.scenario, p.speed, p.depth) for p in POINTS}
+
+
+def test_report_has_table_figures_and_models(quick):
+    text = (quick / "results" / "report" / "index.html").read_text()
+    for point in POINTS:
+        assert f"{point.scenario} {point.name}: blade trajectory" in text
+        assert f"{point.scenario} {point.name}: blade force and torque" in text
+    assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 1
+    for model in MODELS:
+        assert f'id="validation-{model}"' in text
+    assert "not built yet" not in text and "no validation results" not in text
+
+
+def test_snakemake_report(quick):
+    done = snakemake(quick, "--report", "report.html")
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (quick / "report.html").stat().st_size > 10_000
+
+
+def test_rerun_builds_nothing_and_logs_nothing(quick):
+    before = len(runs(quick)[1])
+    done = snakemake(quick)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Nothing to be done" in done.stderr
+    assert len(runs(quick)[1]) == before
+
+
+def test_killed_simulation_is_redone_cleanly(quick):
+    # A point outside the configured sweep: built by asking for its path.
+    point = P.SweepPoint("hill", 1.1, 0.06)
+    store = P.field_path(quick / "results", point)
+    proc = subprocess.Popen(snakemake_cmd(quick, str(store)), env=clean_env(), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
+            assert proc.poll() is None and time.monotonic() < deadline, "the simulation never started"
+            time.sleep(0.05)
+        os.kill(int(partial[0].name.rsplit("-", 1)[1]), signal.SIGKILL)  # the simulate process, mid-run
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait()
+    assert proc.returncode != 0, err[-3000:]
+    assert not store.exists()
+    client, all_runs = runs(quick)
+    failed = [r for r in all_runs if r.data.tags.get("rule") == "workflow" and r.info.status == "FAILED"]
+    assert len(failed) == 1
+
+    done = snakemake(quick, str(store))
+    assert done.returncode == 0, done.stderr[-3000:]
+    ds = xr.open_zarr(store)
+    assert ds.attrs["speed"] == 1.1 and ds.sizes["time"] > 0
+    assert not list(store.parent.glob("*.tmp-*"))
+
+
+def test_invalid_config_is_refused_before_any_job(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sampling: {bins: [0, 4, 4]}\n")
+    done = snakemake(tmp_path, configfile=bad)
+    assert done.returncode != 0
+    assert re.search(r"config field 'sampling\.bins\.0'.*allowed: >= 1", done.stderr)
+    assert not (tmp_path / "results").exists() and not (tmp_path / "mlflow.db").exists()

@@ -1,0 +1,37 @@
+# Models trained on the sweep grid and validated on the held-out points.
+
+
+rule train:
+    input:
+        fields_of("train"),
+    output:
+        directory("results/models/{model}"),
+    log:
+        "logs/train/{model}.log",
+    threads: config["threads"]["train"]
+    params:
+        cfg=lambda wc: config_json("seed", "learn", "mlflow"),
+    shell:
+        "python -m dozerlab train --model {wildcards.model} --train {input:q} --config {params.cfg:q}"
+        " --out {output:q} --threads {threads} > {log:q} 2>&1"
+
+
+rule validate:
+    input:
+        model="results/models/{model}",
+        interpolation=fields_of("interpolation"),
+        extrapolation=fields_of("extrapolation"),
+    output:
+        json="results/validation/{model}.json",
+        plots=directory("results/validation/{model}"),
+    log:
+        "logs/validate/{model}.log",
+    threads: 1
+    params:
+        cfg=lambda wc: config_json("mlflow"),
+        held_out=lambda wc, input: " ".join(
+            [flag("interpolation", input.interpolation), flag("extrapolation", input.extrapolation)]
+        ),
+    shell:
+        "python -m dozerlab validate --model {input.model:q} {params.held_out} --out {output.json:q}"
+        " --plots {output.plots:q} --config {params.cfg:q} --threads {threads} > {log:q} 2>&1"

@@ -1,0 +1,38 @@
+# Beds (one settled bed per scenario, reused by all its runs) and blade trajectories.
+
+
+rule bed:
+    output:
+        bed="results/beds/{scenario}.npz",
+        plot=report("results/beds/{scenario}.png", caption="../report/bed.rst", category="Beds"),
+    log:
+        "logs/bed/{scenario}.log",
+    threads: config["threads"]["bed"]
+    params:
+        cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios"),
+    shell:
+        "python -m dozerlab bed --scenario {wildcards.scenario} --config {params.cfg:q}"
+        " --out {output.bed:q} --plot {output.plot:q} --threads {threads} --no-progress > {log:q} 2>&1"
+
+
+rule trajectory:
+    input:
+        canonical,
+        bed="results/beds/{scenario}.npz",
+    output:
+        csv="results/trajectories/{scenario}/speed~{speed}_depth~{depth}.csv",
+        plot=report(
+            "results/trajectories/{scenario}/speed~{speed}_depth~{depth}.png",
+            caption="../report/trajectory.rst",
+            category="Trajectories",
+            subcategory="{scenario}",
+            labels={"speed (m/s)": "{speed}", "depth (m)": "{depth}"},
+        ),
+    log:
+        "logs/trajectory/{scenario}/speed~{speed}_depth~{depth}.log",
+    threads: 1
+    params:
+        cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory"),
+    shell:
+        "python -m dozerlab trajectory --bed {input.bed:q} --speed {wildcards.speed} --depth {wildcards.depth}"
+        " --config {params.cfg:q} --out {output.csv:q} --plot {output.plot:q} > {log:q} 2>&1"
