@@ -133,7 +133,8 @@ def test_killed_simulation_is_redone_cleanly(quick):
     # A point outside the configured sweep: built by asking for its path.
     point = P.SweepPoint("hill", 1.1, 0.06)
     store = P.field_path(quick / "results", point)
-    proc = subprocess.Popen(snakemake_cmd(quick, str(store)), env=clean_env(), stdout=subprocess.DEVNULL,
+    target = str(store.relative_to(quick))  # targets are paths relative to the working directory
+    proc = subprocess.Popen(snakemake_cmd(quick, target), env=clean_env(), stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 300
@@ -152,11 +153,28 @@ def test_killed_simulation_is_redone_cleanly(quick):
     failed = [r for r in all_runs if r.data.tags.get("rule") == "workflow" and r.info.status == "FAILED"]
     assert len(failed) == 1
 
-    done = snakemake(quick, str(store))
+    done = snakemake(quick, target)
     assert done.returncode == 0, done.stderr[-3000:]
     ds = xr.open_zarr(store)
     assert ds.attrs["speed"] == 1.1 and ds.sizes["time"] > 0
     assert not list(store.parent.glob("*.tmp-*"))
+
+
+def test_quick_config_sets_every_field_the_default_config_sets():
+    """Snakemake lays --configfile over config/config.yaml in the project, not in a bare workdir:
+    the quick sweep is the same either way only if it overrides every field."""
+    import yaml
+
+    def fields(doc, prefix=""):
+        out = set()
+        for key, value in doc.items():
+            out.add(prefix + key)
+            if isinstance(value, dict):
+                out |= fields(value, f"{prefix}{key}.")
+        return out
+
+    default = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    assert fields(default) <= fields(yaml.safe_load(QUICK.read_text()))
 
 
 def test_invalid_config_is_refused_before_any_job(tmp_path):

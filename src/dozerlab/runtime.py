@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -16,13 +17,17 @@ class DozerlabError(Exception):
 def set_threads(n: int) -> int:
     """Limit numba, torch and BLAS to ``n`` threads (the Snakemake rule's ``threads``).
 
-    Snakemake sets ``OMP_NUM_THREADS`` but not ``NUMBA_NUM_THREADS``; numba's pool size is
-    fixed when it first starts, so the environment is set before numba is used, and the
-    active count after. Returns the count in effect.
+    Snakemake sets ``OMP_NUM_THREADS`` but not ``NUMBA_NUM_THREADS``. numba fixes its pool
+    size when it first starts and refuses a changed ``NUMBA_NUM_THREADS`` after that, so the
+    variable is set only while numba is not yet imported (a fresh job process); the active
+    count is set in every case. Returns the count in effect.
     """
     if n < 1:
         raise ValueError(f"threads must be >= 1, got {n}")
-    for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    env = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+    if "numba" not in sys.modules:
+        env += ("NUMBA_NUM_THREADS",)
+    for var in env:
         os.environ[var] = str(n)
     import numba
 

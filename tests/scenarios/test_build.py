@@ -48,12 +48,17 @@ def test_small_bed_settles_inside_the_domain(beds, small_config, scenario):
     assert bed.settle_contacts[-1] > bed.count
 
 
-def test_hill_is_higher_in_the_middle_and_step_on_one_side(beds):
+def test_hill_is_higher_in_the_middle_and_step_on_one_side(beds, small_config):
+    shape = small_config["scenarios"]
     h = profile(beds["hill"])
     assert 3 <= int(np.argmax(h)) <= 8
     assert h.max() > 1.4 * max(h[:3].mean(), h[-3:].mean())
+    # Near the configured heights: the mound slumps somewhat, the rest holds its level.
+    assert 0.6 * shape["hill"]["peak_height"] < h.max() < 1.3 * shape["hill"]["peak_height"]
     h = profile(beds["step"])
     assert h[:6].mean() > 1.5 * h[6:].mean()
+    assert abs(h[:4].mean() - shape["step"]["high_height"]) < 0.3 * shape["step"]["high_height"]
+    assert abs(h[-4:].mean() - shape["step"]["low_height"]) < 0.5 * shape["step"]["low_height"]
 
 
 def test_build_is_deterministic_for_a_seed():

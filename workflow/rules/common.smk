@@ -1,5 +1,7 @@
 # Shared helpers of the rules: the validated config, the sweep's points and target paths, the
-# per-rule config sections and the parent MLflow run of this invocation.
+# per-rule config sections and the parent MLflow run of this invocation. Computing commands run
+# with NUMBA_NUM_THREADS={threads}: numba fixes its pool size when first imported, so the pool
+# matches the rule's threads even if a command imports numba before it calls set_threads.
 import json
 import os
 import shlex
@@ -26,12 +28,16 @@ wildcard_constraints:
     model="[a-z]+",
 
 
-def config_json(*sections):
+def config_json(*sections, scenario=None):
     """The named config sections as inline JSON for a command's --config (a rule's params).
 
-    A rule reruns when its params change, so each rule passes only what its command reads.
+    A rule reruns when its params change, so each rule passes only what its command reads;
+    with ``scenario``, the ``scenarios`` section holds only that scenario's shape.
     """
-    return json.dumps({name: config[name] for name in sections}, sort_keys=True, separators=(",", ":"))
+    doc = {name: config[name] for name in sections}
+    if scenario is not None and "scenarios" in doc:
+        doc["scenarios"] = {scenario: config["scenarios"][scenario]}
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))
 
 
 def canonical(wildcards):

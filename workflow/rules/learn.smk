@@ -12,7 +12,7 @@ rule train:
     params:
         cfg=lambda wc: config_json("seed", "learn", "mlflow"),
     shell:
-        "python -m dozerlab train --model {wildcards.model} --train {input:q} --config {params.cfg:q}"
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab train --model {wildcards.model} --train {input:q} --config {params.cfg:q}"
         " --out {output:q} --threads {threads} > {log:q} 2>&1"
 
 
@@ -33,5 +33,5 @@ rule validate:
             [flag("interpolation", input.interpolation), flag("extrapolation", input.extrapolation)]
         ),
     shell:
-        "python -m dozerlab validate --model {input.model:q} {params.held_out} --out {output.json:q}"
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab validate --model {input.model:q} {params.held_out} --out {output.json:q}"
         " --plots {output.plots:q} --config {params.cfg:q} --threads {threads} > {log:q} 2>&1"

@@ -9,9 +9,9 @@ rule bed:
         "logs/bed/{scenario}.log",
     threads: config["threads"]["bed"]
     params:
-        cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios"),
+        cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios", scenario=wc.scenario),
     shell:
-        "python -m dozerlab bed --scenario {wildcards.scenario} --config {params.cfg:q}"
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab bed --scenario {wildcards.scenario} --config {params.cfg:q}"
         " --out {output.bed:q} --plot {output.plot:q} --threads {threads} --no-progress > {log:q} 2>&1"
 
 
@@ -32,7 +32,7 @@ rule trajectory:
         "logs/trajectory/{scenario}/speed~{speed}_depth~{depth}.log",
     threads: 1
     params:
-        cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory"),
+        cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory", scenario=wc.scenario),
     shell:
         "python -m dozerlab trajectory --bed {input.bed:q} --speed {wildcards.speed} --depth {wildcards.depth}"
         " --config {params.cfg:q} --out {output.csv:q} --plot {output.plot:q} > {log:q} 2>&1"

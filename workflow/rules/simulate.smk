@@ -16,11 +16,13 @@ rule simulate:
         "logs/simulate/{scenario}/speed~{speed}_depth~{depth}.log",
     threads: config["threads"]["simulate"]
     params:
-        cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios", "blade", "sampling"),
+        cfg=lambda wc: config_json(
+            "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
+        ),
     shell:
         # Temporaries of a killed earlier attempt (runtime.atomic_output's .NAME.tmp-PID) go first.
         'rm -rf "$(dirname {output:q})"/."$(basename {output:q})".tmp-*; '
-        "python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
         " --config {params.cfg:q} --out {output:q} --threads {threads} > {log:q} 2>&1"
 
 

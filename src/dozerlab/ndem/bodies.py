@@ -89,7 +89,8 @@ class Bodies:
             raise ValueError(f"half_extents must be > 0, got {half.tolist()}")
         q = np.array([1.0, 0, 0, 0]) if orientation is None else np.asarray(orientation, float)
         if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0.0:
-            raise ValueError(f"orientation must be a non-zero quaternion (w, x, y, z), got {orientation!r}")
+            raise ValueError(
+                f"orientation must be a non-zero quaternion (w, x, y, z), got {orientation!r}")
         return self._append(BOX, vec3("center", center), q / np.linalg.norm(q), half,
                             np.zeros(3), nonnegative("friction", friction), bool(kinematic))
 

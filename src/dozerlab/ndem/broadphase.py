@@ -16,8 +16,8 @@ def grid_layout(
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Origin (3,), cell edge (m) and cell counts (3,) of a grid covering ``pos`` (N, 3).
 
-    The edge starts at ``2·reach_max`` (the largest contact distance) and grows until the grid has at most ``max_cells``
-    cells, so one escaped particle cannot blow up the memory.
+    The edge starts at ``2·reach_max`` (the largest contact distance) and grows until the grid
+    has at most ``max_cells`` cells, so one escaped particle cannot blow up the memory.
     """
     lo = pos.min(axis=0) - 1e-9
     extent = pos.max(axis=0) - lo + 1e-9
@@ -29,12 +29,12 @@ def grid_layout(
         cell *= 1.5
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def cell_indices(pos: np.ndarray, lo: np.ndarray, cell: float, dims: np.ndarray) -> np.ndarray:
     """Linear cell index (x-major) of every particle, (N,) int64."""
     n = pos.shape[0]
     out = np.empty(n, dtype=np.int64)
-    for i in prange(n):
+    for i in range(n):
         ix = min(int((pos[i, 0] - lo[0]) / cell), dims[0] - 1)
         iy = min(int((pos[i, 1] - lo[1]) / cell), dims[1] - 1)
         iz = min(int((pos[i, 2] - lo[2]) / cell), dims[2] - 1)

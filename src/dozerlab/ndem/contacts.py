@@ -8,7 +8,7 @@ rows' constants live in one (Nc, NCOL) float64 table, laid out per contact for c
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 PLANE = 0
 BOX = 1
@@ -30,37 +30,41 @@ NCOL = 18
 
 
 @njit(cache=True)
-def _body_test(x, r, margin, kind, c, rot, ext, nrm, out_n):
-    """Overlap of a sphere (x, r) with one body; writes the normal into out_n (3,)."""
+def _body_test(x, r, margin, kind, c, rot, ext, nrm):
+    """Overlap (m) of a sphere (x, r) with one body and the normal out of the body (3 floats)."""
+    dx0, dx1, dx2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
     if kind == PLANE:
-        d = (x[0] - c[0]) * nrm[0] + (x[1] - c[1]) * nrm[1] + (x[2] - c[2]) * nrm[2]
-        out_n[:] = nrm
-        return r - d
-    dx = x - c
-    if dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2] > (r + margin + np.sqrt(
-            ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2])) ** 2:
-        return -np.inf
-    p = np.empty(3)
-    for a in range(3):  # local coordinates: rot's columns are the box axes
-        p[a] = dx[0] * rot[0, a] + dx[1] * rot[1, a] + dx[2] * rot[2, a]
-    q = np.minimum(np.maximum(p, -ext), ext)
-    d = p - q
-    dist = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        return r - (dx0 * nrm[0] + dx1 * nrm[1] + dx2 * nrm[2]), nrm[0], nrm[1], nrm[2]
+    reach = r + margin + np.sqrt(ext[0] * ext[0] + ext[1] * ext[1] + ext[2] * ext[2])
+    if dx0 * dx0 + dx1 * dx1 + dx2 * dx2 > reach * reach:
+        return -np.inf, 0.0, 0.0, 1.0
+    # Local coordinates (rot's columns are the box axes), clamped onto the box.
+    p0 = dx0 * rot[0, 0] + dx1 * rot[1, 0] + dx2 * rot[2, 0]
+    p1 = dx0 * rot[0, 1] + dx1 * rot[1, 1] + dx2 * rot[2, 1]
+    p2 = dx0 * rot[0, 2] + dx1 * rot[1, 2] + dx2 * rot[2, 2]
+    d0 = p0 - min(max(p0, -ext[0]), ext[0])
+    d1 = p1 - min(max(p1, -ext[1]), ext[1])
+    d2 = p2 - min(max(p2, -ext[2]), ext[2])
+    dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     if dist > 0.0:
-        loc = d / dist
+        l0, l1, l2 = d0 / dist, d1 / dist, d2 / dist
         g = r - dist
     else:  # centre inside: leave through the nearest face
-        depth = ext - np.abs(p)
-        a = np.argmin(depth)
-        loc = np.zeros(3)
-        loc[a] = 1.0 if p[a] >= 0.0 else -1.0
-        g = r + depth[a]
-    for a in range(3):
-        out_n[a] = rot[a, 0] * loc[0] + rot[a, 1] * loc[1] + rot[a, 2] * loc[2]
-    return g
+        e0, e1, e2 = ext[0] - abs(p0), ext[1] - abs(p1), ext[2] - abs(p2)
+        l0, l1, l2 = 0.0, 0.0, 0.0
+        if e0 <= e1 and e0 <= e2:
+            l0, g = (1.0 if p0 >= 0.0 else -1.0), r + e0
+        elif e1 <= e2:
+            l1, g = (1.0 if p1 >= 0.0 else -1.0), r + e1
+        else:
+            l2, g = (1.0 if p2 >= 0.0 else -1.0), r + e2
+    return (g,
+            rot[0, 0] * l0 + rot[0, 1] * l1 + rot[0, 2] * l2,
+            rot[1, 0] * l0 + rot[1, 1] * l1 + rot[1, 2] * l2,
+            rot[2, 0] * l0 + rot[2, 1] * l1 + rot[2, 2] * l2)
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
 
@@ -69,12 +73,11 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     n = pos.shape[0]
     nb = kind.shape[0]
     counts = np.zeros(n + 1, dtype=np.int64)
-    for i in prange(n):
-        tmp = np.empty(3)
+    for i in range(n):
         c = 0
         for b in range(nb):
-            g = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b],
-                           bnormal[b], tmp)
+            g, _, _, _ = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b],
+                                    bext[b], bnormal[b])
             if g > -margin[i]:
                 c += 1
         counts[i + 1] = c
@@ -84,22 +87,21 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     sb = np.empty(m, dtype=np.int64)
     nrm = np.empty((m, 3))
     gap = np.empty(m)
-    for i in prange(n):
-        tmp = np.empty(3)
+    for i in range(n):
         k = off[i]
         for b in range(nb):
-            g = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b],
-                           bnormal[b], tmp)
+            g, n0, n1, n2 = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b],
+                                       bext[b], bnormal[b])
             if g > -margin[i]:
                 si[k] = i
                 sb[k] = b
-                nrm[k] = tmp
+                nrm[k, 0], nrm[k, 1], nrm[k, 2] = n0, n1, n2
                 gap[k] = g
                 k += 1
     return si, sb, nrm, gap
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def assemble(
     pi, pj, pn, pg, bi, bb, bn, bg, slab, n_slabs,
     pos, vel, radii, invm, invI, mu, mur,
@@ -115,7 +117,7 @@ def assemble(
     mp = pi.shape[0]
     mt = mp + bi.shape[0]
     group = np.empty(mt, dtype=np.int64)
-    for k in prange(mt):
+    for k in range(mt):
         if k < mp:
             si = slab[pi[k]]
             sj = slab[pj[k]]
@@ -137,7 +139,7 @@ def assemble(
     cj = np.empty(mt, dtype=np.int64)
     cd = np.zeros((mt, NCOL))
     gap = np.empty(mt)
-    for k in prange(mt):
+    for k in range(mt):
         s = src[k]
         if s < mp:
             i, j, g = pi[s], pj[s], pg[s]
@@ -216,13 +218,17 @@ def body_loads(ci, cj, cd, lam, pos, bpos, nb, h):
             continue
         b = -cj[k] - 1
         i = ci[k]
-        f = np.empty(3)
-        arm = np.empty(3)
-        for a in range(3):
-            f[a] = -(lam[k, 0] * cd[k, N0 + a] + lam[k, 1 + a]) / h
-            arm[a] = pos[i, a] - cd[k, RI] * cd[k, N0 + a] - bpos[b, a]
-        force[b] += f
-        torque[b, 0] += arm[1] * f[2] - arm[2] * f[1] - lam[k, 4] / h
-        torque[b, 1] += arm[2] * f[0] - arm[0] * f[2] - lam[k, 5] / h
-        torque[b, 2] += arm[0] * f[1] - arm[1] * f[0] - lam[k, 6] / h
+        n0, n1, n2 = cd[k, N0], cd[k, N0 + 1], cd[k, N0 + 2]
+        f0 = -(lam[k, 0] * n0 + lam[k, 1]) / h
+        f1 = -(lam[k, 0] * n1 + lam[k, 2]) / h
+        f2 = -(lam[k, 0] * n2 + lam[k, 3]) / h
+        a0 = pos[i, 0] - cd[k, RI] * n0 - bpos[b, 0]
+        a1 = pos[i, 1] - cd[k, RI] * n1 - bpos[b, 1]
+        a2 = pos[i, 2] - cd[k, RI] * n2 - bpos[b, 2]
+        force[b, 0] += f0
+        force[b, 1] += f1
+        force[b, 2] += f2
+        torque[b, 0] += a1 * f2 - a2 * f1 - lam[k, 4] / h
+        torque[b, 1] += a2 * f0 - a0 * f2 - lam[k, 5] / h
+        torque[b, 2] += a0 * f1 - a1 * f0 - lam[k, 6] / h
     return force, torque

@@ -5,10 +5,10 @@ vector in the tangent plane (3) and the rolling-resistance angular impulse (3). 
 normal row is solved first, then friction projected onto the disc μ·λ_n, then rolling
 resistance projected onto the disc R*·μ_r·λ_n; each update is applied to the velocities at once.
 
-Parallel sweep: groups < S are the contacts inside one slab, groups S + s join slabs s and s + 1.
-Within each of three phases (interiors, even boundaries, odd boundaries) no two groups share a
-particle, so the groups of a phase run on separate threads with no locks, and the result does
-not depend on the thread count.
+Parallel sweep: group s < S holds the contacts inside slab s, group S + s those joining slabs
+s and s + 1. A task sweeps slab s and then its boundary with s + 1, so it touches only those two
+slabs; the tasks of even slabs run in parallel, then those of odd slabs. No two concurrent tasks
+share a particle, so no locks are needed, and the result does not depend on the thread count.
 """
 
 from __future__ import annotations
@@ -54,6 +54,14 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     vj1 -= dn * imj * n1
     vj2 -= dn * imj * n2
     res = dn / c[KN]
+    if ln_new == 0.0 and lam[k, 1] == 0.0 and lam[k, 2] == 0.0 and lam[k, 3] == 0.0 \
+            and lam[k, 4] == 0.0 and lam[k, 5] == 0.0 and lam[k, 6] == 0.0:
+        # Separating or speculative and unloaded: the friction and rolling discs are points.
+        if dn != 0.0:
+            v[i, 0], v[i, 1], v[i, 2] = vi0, vi1, vi2
+            if j >= 0:
+                v[j, 0], v[j, 1], v[j, 2] = vj0, vj1, vj2
+        return res * res
 
     ri = c[RI]
     rj = c[RJ]
@@ -142,7 +150,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     return res * res
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
     """Apply contact k's multipliers (a warm start) to the velocities."""
     i = ci[k]
@@ -160,15 +168,6 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
             w[j, a] -= invI[j] * (lam[k, 4 + a] + cd[k, RJ] * x[a])
 
 
-@njit(cache=True)
-def _group(phase, m, n_slabs):
-    """Group index of the m-th group of a phase (0 interiors, 1 even, 2 odd boundaries)."""
-    mm = np.int64(m)  # prange indices may be unsigned; keep the sum integral
-    if phase == 0:
-        return mm
-    return np.int64(n_slabs) + 2 * mm + np.int64(phase - 1)
-
-
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def pgs(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm):
     """Run ``iterations`` PGS sweeps; returns the RMS normal-row residual of the last (m/s).
@@ -176,30 +175,30 @@ def pgs(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm):
     With ``warm`` the incoming ``lam`` are first applied to ``v``/``w`` (a warm start);
     otherwise ``lam`` must be zero.
     """
-    counts = (n_slabs, n_slabs // 2, (n_slabs - 1) // 2)
     nc = ci.shape[0]
     if warm:
-        for phase in range(3):
-            for m in prange(counts[phase]):
-                g = _group(phase, m, n_slabs)
-                for k in range(start[g], start[g + 1]):
-                    _apply(k, ci, cj, cd, lam, v, w, invm, invI)
+        for k in range(nc):
+            _apply(k, ci, cj, cd, lam, v, w, invm, invI)
     res = 0.0
     for _ in range(iterations):
         res = 0.0
-        for phase in range(3):
-            for m in prange(counts[phase]):
-                g = _group(phase, m, n_slabs)
-                for k in range(start[g], start[g + 1]):
+        for phase in range(2):
+            for m in prange((n_slabs - phase + 1) // 2):
+                s = 2 * np.int64(m) + phase  # prange indices may be unsigned
+                for k in range(start[s], start[s + 1]):
                     res += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
+                if s < n_slabs - 1:
+                    g = n_slabs + s
+                    for k in range(start[g], start[g + 1]):
+                        res += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
     return np.sqrt(res / max(nc, 1))
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def integrate(x, v, w, h):
     """Advance positions by h·v (symplectic Euler); returns True when any value is not finite."""
     bad = 0
-    for i in prange(x.shape[0]):
+    for i in range(x.shape[0]):
         for a in range(3):
             x[i, a] += h * v[i, a]
             if not (np.isfinite(x[i, a]) and np.isfinite(v[i, a]) and np.isfinite(w[i, a])):
@@ -207,11 +206,11 @@ def integrate(x, v, w, h):
     return bad > 0
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def all_finite(x, v, w):
     """True when every position, velocity and angular velocity is finite."""
     bad = 0
-    for i in prange(x.shape[0]):
+    for i in range(x.shape[0]):
         for a in range(3):
             if not (np.isfinite(x[i, a]) and np.isfinite(v[i, a]) and np.isfinite(w[i, a])):
                 bad += 1

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from dozerlab.ndem import broadphase, contacts, solver
@@ -12,15 +13,17 @@ from dozerlab.ndem.stats import DivergenceError, StepStats
 if TYPE_CHECKING:
     from dozerlab.ndem.world import World
 
-SORTED_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
+SORTED_FIELDS = ("_x", "_v", "_w", "_r", "_m", "_mu", "_mur", "_id")
+# Below this many contacts a sweep is too short to pay for the per-phase thread barriers.
+PARALLEL_MIN_CONTACTS = 4096
 
 
 def _sort(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-sort the spheres by grid cell; returns the cell of each slot, cell offsets and dims."""
     reach = _reach(world)
-    lo, cell, dims = broadphase.grid_layout(world.x, float(reach.max()),
+    lo, cell, dims = broadphase.grid_layout(world._x, float(reach.max()),
                                             max(8 * world.n_spheres, 4096))
-    cells = broadphase.cell_indices(world.x, lo, cell, dims)
+    cells = broadphase.cell_indices(world._x, lo, cell, dims)
     perm, start = broadphase.counting_sort(cells, int(np.prod(dims)))
     for f in SORTED_FIELDS:
         setattr(world, f, np.ascontiguousarray(getattr(world, f)[perm]))
@@ -34,9 +37,9 @@ def _reach(world: World) -> np.ndarray:
     capped at the largest radius so one fast particle cannot inflate the grid.
     """
     h = world.dt
-    speed = np.sqrt(((world.v + h * world.gravity) ** 2).sum(axis=1))
-    rmax = float(world.r.max())
-    return world.r + 0.5 * world.contact_margin * float(world.r.min()) + np.minimum(h * speed, rmax)
+    speed = np.sqrt(((world._v + h * world.gravity) ** 2).sum(axis=1))
+    rmax = float(world._r.max())
+    return world._r + 0.5 * world.contact_margin * float(world._r.min()) + np.minimum(h * speed, rmax)
 
 
 def advance(world: World) -> StepStats:
@@ -53,40 +56,46 @@ def advance(world: World) -> StepStats:
         world.step_count += 1
         return StepStats(world.step_count, world.time, 0, 0, 0.0, 0.0, 0.0)
 
-    if not solver.all_finite(world.x, world.v, world.w):
+    if not solver.all_finite(world._x, world._v, world._w):
         _raise_non_finite(world, "before")
     cells, start, dims = _sort(world)
     slab_of_column = broadphase.slab_partition(start, dims, world.slabs)
     n_slabs = int(slab_of_column.max()) + 1
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
     reach = _reach(world)
-    pi, pj, pn, pg = broadphase.sphere_pairs(world.x, world.r, reach, cells, start, dims)
+    pi, pj, pn, pg = broadphase.sphere_pairs(world._x, world._r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     bi, bb, bn, bg = contacts.body_contacts(
-        world.x, world.r, 2.0 * (reach - world.r) + world.dt * body_speed, bodies.kind, bodies.center, bodies.rotations(), bodies.half,
-        bodies.normal)
-    invm = 1.0 / world.m
-    invI = 1.0 / (0.4 * world.m * world.r**2)
+        world._x, world._r, 2.0 * (reach - world._r) + world.dt * body_speed, bodies.kind,
+        bodies.center, bodies.rotations(), bodies.half, bodies.normal)
+    invm = 1.0 / world._m
+    invI = 1.0 / (0.4 * world._m * world._r**2)
     nu = world.poisson_ratio
     estar = world.youngs_modulus / (2.0 * (1.0 - nu * nu))
     upsilon = 1.0 / (1.0 + 4.0 * world.damping_steps)
     ci, cj, cd, gap, gstart = contacts.assemble(
         pi, pj, pn, pg, bi, bb, bn, bg, slab, n_slabs,
-        world.x, world.v, world.r, invm, invI, world.mu, world.mur,
+        world._x, world._v, world._r, invm, invI, world._mu, world._mur,
         bodies.center, bodies.vel, bodies.ang, bodies.mu, h, upsilon, estar)
     frac = _check_overlap(world, ci, cj, gap)
 
-    world.v += h * world.gravity
+    world._v += h * world.gravity
     if world.warm_start:
-        lam, _ = world._warm.lookup(world.id, ci, cj, cd[:, contacts.N0:contacts.N0 + 3])
+        lam = world._warm.lookup(world._id, ci, cj, cd[:, contacts.N0:contacts.N0 + 3])
     else:
         lam = np.zeros((ci.shape[0], 7))
-    residual = solver.pgs(ci, cj, cd, lam, world.v, world.w, invm, invI, gstart, n_slabs,
-                          world.iterations, world.warm_start)
-    world._warm.store(world.id, ci, cj, lam)
-    bodies.force, bodies.torque = contacts.body_loads(ci, cj, cd, lam, world.x, bodies.center,
+    threads = numba.get_num_threads()
+    if ci.shape[0] < PARALLEL_MIN_CONTACTS:
+        numba.set_num_threads(1)
+    try:
+        residual = solver.pgs(ci, cj, cd, lam, world._v, world._w, invm, invI, gstart, n_slabs,
+                              world.iterations, world.warm_start)
+    finally:
+        numba.set_num_threads(threads)
+    world._warm.store(world._id, ci, cj, lam)
+    bodies.force, bodies.torque = contacts.body_loads(ci, cj, cd, lam, world._x, bodies.center,
                                                       nb, h)
-    if solver.integrate(world.x, world.v, world.w, h):
+    if solver.integrate(world._x, world._v, world._w, h):
         _raise_non_finite(world, "after")
     bodies.integrate(h)
     world.time += h
@@ -101,20 +110,20 @@ def advance(world: World) -> StepStats:
 
 def _check_overlap(world: World, ci: np.ndarray, cj: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """Overlaps over the smaller radius (Nc,); DivergenceError when one exceeds max_overlap."""
-    rmin = np.where(cj >= 0, np.minimum(world.r[ci], world.r[np.maximum(cj, 0)]), world.r[ci])
+    rmin = np.where(cj >= 0, np.minimum(world._r[ci], world._r[np.maximum(cj, 0)]), world._r[ci])
     frac = np.maximum(gap, 0.0) / rmin
     if frac.size == 0 or frac.max() <= world.max_overlap:
         return frac
     k = int(frac.argmax())
-    other = (f"sphere {world.id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}")
+    other = (f"sphere {world._id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}")
     raise DivergenceError(
         f"overlap {gap[k]:.4g} m = {frac[k]:.3g} of the smaller radius between sphere "
-        f"{world.id[ci[k]]} and {other} exceeds max_overlap = {world.max_overlap} at step "
+        f"{world._id[ci[k]]} and {other} exceeds max_overlap = {world.max_overlap} at step "
         f"{world.step_count + 1} (t = {world.time:.6g} s)")
 
 
 def _raise_non_finite(world: World, when: str) -> None:
-    bad = world.id[~np.all(np.isfinite(np.hstack([world.x, world.v, world.w])), axis=1)]
+    bad = world._id[~np.all(np.isfinite(np.hstack([world._x, world._v, world._w])), axis=1)]
     raise DivergenceError(
         f"non-finite sphere state (NaN or inf) {when} step {world.step_count + 1} "
         f"(t = {world.time:.6g} s): {bad.size} spheres, ids {np.sort(bad)[:10].tolist()}")

@@ -17,7 +17,7 @@ from dozerlab.ndem.stats import StepStats
 from dozerlab.ndem.stepper import advance
 from dozerlab.ndem.warmstart import WarmStart
 
-SPHERE_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
+SPHERE_FIELDS = ("_x", "_v", "_w", "_r", "_m", "_mu", "_mur", "_id")
 
 
 class World:
@@ -47,7 +47,7 @@ class World:
         damping_steps: float = 3.0, youngs_modulus: float = 1.0e8, poisson_ratio: float = 0.3,
         max_overlap: float = 0.5, density: float = 2600.0, friction: float = 0.5,
         rolling_resistance: float = 0.1, wall_friction: float = 0.5,
-        contact_margin: float = 0.1, slabs: int = 16, warm_start: bool = True,
+        contact_margin: float = 0.02, slabs: int = 16, warm_start: bool = True,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0 s, got {dt!r}")
@@ -80,14 +80,15 @@ class World:
         self.bodies = Bodies()
         self._warm = WarmStart()
         self.last_stats: StepStats | None = None
-        self.x = np.zeros((0, 3))
-        self.v = np.zeros((0, 3))
-        self.w = np.zeros((0, 3))
-        self.r = np.zeros(0)
-        self.m = np.zeros(0)
-        self.mu = np.zeros(0)
-        self.mur = np.zeros(0)
-        self.id = np.zeros(0, dtype=np.int64)
+        # Per-sphere storage in slot (spatially sorted) order; _id maps slot → sphere id.
+        self._x = np.zeros((0, 3))
+        self._v = np.zeros((0, 3))
+        self._w = np.zeros((0, 3))
+        self._r = np.zeros(0)
+        self._m = np.zeros(0)
+        self._mu = np.zeros(0)
+        self._mur = np.zeros(0)
+        self._id = np.zeros(0, dtype=np.int64)
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> World:
@@ -147,9 +148,9 @@ class World:
             "rolling_resistance", rolling_resistance)
         v = self._vectors("velocities", velocities, n)
         w = self._vectors("angular_velocities", angular_velocities, n)
-        ids = np.arange(len(self.id), len(self.id) + n, dtype=np.int64)
-        new = dict(x=x, v=v, w=w, r=r, m=rho * 4.0 / 3.0 * np.pi * r**3,
-                   mu=np.full(n, mu), mur=np.full(n, mur), id=ids)
+        ids = np.arange(len(self._id), len(self._id) + n, dtype=np.int64)
+        new = dict(_x=x, _v=v, _w=w, _r=r, _m=rho * 4.0 / 3.0 * np.pi * r**3,
+                   _mu=np.full(n, mu), _mur=np.full(n, mur), _id=ids)
         for f in SPHERE_FIELDS:
             setattr(self, f, np.concatenate([getattr(self, f), new[f]]))
         return ids
@@ -180,39 +181,40 @@ class World:
             if ids.size and (ids.min() < 0 or ids.max() >= self.n_spheres):
                 raise ValueError(f"ids must be in [0, {self.n_spheres - 1}]")
             drop[ids] = True
-        keep_slot = ~drop[self.id]
+        keep_slot = ~drop[self._id]
         for f in SPHERE_FIELDS:
             setattr(self, f, np.ascontiguousarray(getattr(self, f)[keep_slot]))
         new_id = np.cumsum(~drop) - 1
-        self.id = new_id[self.id]
+        self._id = new_id[self._id]
         self._warm = WarmStart()
         return np.flatnonzero(~drop)
 
     @property
     def n_spheres(self) -> int:
         """Number of spheres N."""
-        return int(self.id.shape[0])
+        return int(self._id.shape[0])
 
     def _public(self, a: np.ndarray) -> np.ndarray:
         out = np.empty_like(a)
-        out[self.id] = a
+        out[self._id] = a
         return out
 
     def _assign(self, name: str, value: object) -> None:
         a = self._vectors(name, value, self.n_spheres)
-        getattr(self, {"positions": "x", "velocities": "v", "angular_velocities": "w"}[name])[:] = a[self.id]
+        field = {"positions": "_x", "velocities": "_v", "angular_velocities": "_w"}[name]
+        getattr(self, field)[:] = a[self._id]
 
-    positions = property(lambda self: self._public(self.x),
+    positions = property(lambda self: self._public(self._x),
                          lambda self, a: self._assign("positions", a),
                          doc="Sphere centres (N, 3) m in id order (a copy; assign to set).")
-    velocities = property(lambda self: self._public(self.v),
+    velocities = property(lambda self: self._public(self._v),
                           lambda self, a: self._assign("velocities", a),
                           doc="Sphere velocities (N, 3) m/s in id order (a copy; assign to set).")
     angular_velocities = property(
-        lambda self: self._public(self.w), lambda self, a: self._assign("angular_velocities", a),
+        lambda self: self._public(self._w), lambda self, a: self._assign("angular_velocities", a),
         doc="Sphere angular velocities (N, 3) rad/s in id order (a copy; assign to set).")
-    radii = property(lambda self: self._public(self.r), doc="Radii (N,) m in id order.")
-    masses = property(lambda self: self._public(self.m), doc="Masses (N,) kg in id order.")
+    radii = property(lambda self: self._public(self._r), doc="Radii (N,) m in id order.")
+    masses = property(lambda self: self._public(self._m), doc="Masses (N,) kg in id order.")
 
     def set_sphere_state(self, ids: object, positions: object | None = None,
                          velocities: object | None = None,
@@ -222,9 +224,10 @@ class World:
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_spheres):
             raise ValueError(f"ids must be in [0, {self.n_spheres - 1}]")
         slot = np.empty(self.n_spheres, dtype=np.int64)
-        slot[self.id] = np.arange(self.n_spheres)
-        for name, value, arr in (("positions", positions, self.x), ("velocities", velocities, self.v),
-                                 ("angular_velocities", angular_velocities, self.w)):
+        slot[self._id] = np.arange(self.n_spheres)
+        for name, value, arr in (("positions", positions, self._x),
+                                 ("velocities", velocities, self._v),
+                                 ("angular_velocities", angular_velocities, self._w)):
             if value is not None:
                 arr[slot[ids]] = self._vectors(name, value, ids.size)
 

@@ -16,7 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.points import SweepPoint, field_path, simulate_benchmark_path, trajectory_path
+from dozerlab.report.points import (
+    SweepPoint,
+    field_path,
+    fmt_number,
+    simulate_benchmark_path,
+    trajectory_path,
+)
 
 
 @dataclass
@@ -36,8 +42,8 @@ class PointSummary:
 
     def row(self) -> list[object]:
         p = self.point
-        return [p.scenario, p.role, p.speed, p.depth, self.particles, self.steps, self.wall_time,
-                self.mean_force, self.peak_force]
+        return [p.scenario, p.role, fmt_number(p.speed), fmt_number(p.depth), self.particles, self.steps,
+                self.wall_time, self.mean_force, self.peak_force]
 
 
 HEADERS = ["scenario", "role", "speed (m/s)", "depth (m)", "particles", "steps", "wall time (s)",

@@ -1,17 +1,15 @@
 """Building a scenario's bed the thesis's way (SPEC §3), and the world that holds it.
 
-A thin emitter strip spanning the domain's width moves along x over the ground, creating
-particles of radius r·(1 ± radius_dispersion) (uniform) at rest. Particles are created at a
-constant rate and the strip moves slowly where the bed should be high: its speed is
-``bed.emitter_speed · h_ref / h(x)``, with h(x) the scenario's target height profile and h_ref
-its lowest height (at least a particle diameter), so the volume laid down per unit length
-follows h(x) (equivalently, the strip sits where the cumulative target particle count reaches
-the count emitted so far). Each particle is created ``bed.emitter_gap`` above the surface
-beneath its random spot in the strip (never above a particle still falling), so it never
-overlaps another and lands gently (a fall from higher up penetrates too far in one step at
-the bed's dt); where the strip is busy, creation waits and so does the strip. The particles then settle
-until the mean kinetic energy per particle falls below ``bed.settle_kinetic_energy``. The
-build is deterministic for ``seed``.
+A thin emitter strip spanning the domain's width makes one pass along x over the ground,
+creating layers of particles of radius r·(1 ± radius_dispersion) (uniform), each at a random
+spot of its cell of a grid across the strip, a small gap above the local surface and falling
+at ``bed.emitter_drop_speed`` (impacts are inelastic). The strip lingers where the bed should be
+high: it lays particles in the cells that hold fewer than ``packing_fraction`` × the target
+volume above them (scenario height profile h(x) × cell area) and moves on one row once its rear
+row holds its share, so the volume laid per unit length follows h(x), and material that rolls
+ahead of the strip is not laid again. The particles then settle until the mean kinetic energy
+per particle falls below ``bed.settle_kinetic_energy``; slopes steeper than the pile stands
+slump to its angle of repose. The build is deterministic for ``seed``.
 
 The domain is held by static planes: the ground z = 0, side walls at y = ±width/2, a start wall
 at x = 0 and an end wall at x = length. :func:`make_world` keeps all of them for the simulation:
@@ -31,12 +29,17 @@ from dozerlab.ndem import World
 from dozerlab.runtime import DozerlabError
 from dozerlab.scenarios.bed import SCENARIOS, Bed
 
-#: Emitter strip thickness along x, in mean particle radii.
-STRIP_RADII = 8.0
-#: Random spots tried per particle and step before creation waits for the next step.
-ATTEMPTS = 8
-#: Speed (m/s) below which a particle counts as landed: new particles may be created above it.
-RESTING_SPEED = 0.15
+#: Rows of particles (along x) in one emitted layer: the strip's thickness.
+STRIP_ROWS = 2
+#: Extra width of a layer cell beyond a largest particle's diameter, in mean radii: room for
+#: each particle's random offset inside its cell, so layer neighbours never overlap.
+CELL_SLACK_RADII = 1.0
+#: A row may take this many times as many layers as it needs particles per cell before the
+#: strip moves on anyway (where particles keep rolling off a target steeper than the pile stands).
+ROW_PATIENCE = 2.0
+#: Steps a new particle takes to come to rest on the surface after its fall (the inelastic
+#: impact itself and the contacts around it settling).
+LANDING_STEPS = 5
 
 
 def target_profile(scenario: str, config: dict[str, Any], x: np.ndarray) -> np.ndarray:
@@ -100,75 +103,99 @@ def _kinetic_energy(world: World) -> float:
 
 
 class _Emitter:
-    """The moving strip: where it is, and where it may place the next particles."""
+    """The strip: where it is, when it lays a layer, where the particles go, when it moves on.
+
+    The ground is divided into rows along x of ``cell_x`` and columns along y of ``cell_y``, both
+    wider than the largest particle. Each cell should end up holding ``packing_fraction`` × its
+    target volume (target height × area) in particles. The strip covers ``rows`` rows from row
+    ``rear``; a layer puts one particle of random radius at a random spot in each of its cells
+    that holds fewer than that (cells wider than a particle keep layer neighbours apart). The
+    count is of the particles there now, so what rolls ahead of the strip is not laid twice.
+    The strip moves on one row once its rear row holds its share, or after ``ROW_PATIENCE`` times
+    the layers that would take, where the target is steeper than the pile can stand.
+    """
 
     def __init__(self, scenario: str, config: dict[str, Any], rng: np.random.Generator):
         b = config["bed"]
         self.length, self.width = float(b["length"]), float(b["width"])
         self.r, self.spread, self.gap = float(b["radius"]), float(b["radius_dispersion"]), float(b["emitter_gap"])
         self.rng = rng
-        x = np.linspace(0.0, self.length, 4097)
-        h = target_profile(scenario, config, x)
+        cell = 2.0 * self.r * (1.0 + self.spread) + CELL_SLACK_RADII * self.r
+        if cell > min(self.length, self.width):
+            raise ValueError(f"bed.length ({self.length} m) and bed.width ({self.width} m) must both exceed "
+                             f"one emitter cell of {cell:.3g} m (bed.radius {self.r} m is too large)")
+        self.n_rows, self.columns = int(self.length // cell), int(self.width // cell)
+        self.cell_x, self.cell_y = self.length / self.n_rows, self.width / self.columns
+        self.rows = min(STRIP_ROWS, self.n_rows)
+        height = target_profile(scenario, config, (np.arange(self.n_rows) + 0.5) * self.cell_x)
         mean_volume = 4.0 / 3.0 * np.pi * self.r**3 * (1.0 + self.spread**2)
-        per_length = float(b["packing_fraction"]) * self.width * h / mean_volume
-        cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (per_length[1:] + per_length[:-1]) * np.diff(x))])
-        self.x, self.cumulative, self.total = x, cumulative, int(round(cumulative[-1]))
-        h_ref = max(float(h.min()), 2.0 * self.r)
-        self.rate = float(b["emitter_speed"]) * h_ref * per_length.max() / h.max()
-        if self.total < 1:
+        #: Particles each cell of a row should hold (n_rows,).
+        self.quota = float(b["packing_fraction"]) * self.cell_x * self.cell_y * height / mean_volume
+        self.estimate = int(round(self.quota.sum() * self.columns))
+        if self.estimate < 1:
             raise ValueError("the scenario's bed heights are too low to hold a single particle")
+        self.rear, self.tries = 0, 0
+        # A layer must land before the next is laid over it, or each new layer would sit on the
+        # falling one before it and the drops would grow without bound; the strip also keeps
+        # below emitter_speed.
+        self.drop_speed, g = float(b["emitter_drop_speed"]), float(np.linalg.norm(config["solver"]["gravity"]))
+        fall = 2.0 * self.gap / (self.drop_speed + np.sqrt(self.drop_speed**2 + 4.0 * g * self.gap))
+        self.period = max(fall + LANDING_STEPS * float(b["dt"]), self.cell_x / float(b["emitter_speed"]))
+        self.in_flight = 0.9 * max(self.drop_speed, np.sqrt(2.0 * g * self.gap))
 
-    def position(self, emitted: int) -> float:
-        """Strip centre (m) once ``emitted`` particles have been created."""
-        return float(np.interp(emitted + 0.5, self.cumulative, self.x))
+    @property
+    def done(self) -> bool:
+        """Whether the strip has passed the end of the domain."""
+        return self.rear >= self.n_rows
 
-    def place(self, n: int, xe: float, pos: np.ndarray, rad: np.ndarray,
-              vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n`` new particles (positions (k, 3), radii (k,)) in the strip centred at ``xe``.
+    def layer(self, pos: np.ndarray, rad: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The next layer: positions (k, 3) and radii (k,) of new particles; moves the strip on.
 
-        Each goes to a random (x, y) in the strip, ``emitter_gap`` above the height at which it
-        would first touch the ground, an existing particle (``pos``, ``rad``, velocities ``vel``)
-        or one created just before it, so it never overlaps and falls only that gap. A spot above
-        a particle still in motion is refused (the new one would follow it down and land fast);
-        after ``ATTEMPTS`` refusals creation waits for the next step.
+        Each particle sits ``emitter_gap`` (up to twice that, at random) above the height at which
+        it would first touch the ground or a landed particle (``pos`` (N, 3), ``rad`` (N,),
+        velocities ``vel`` (N, 3) slower than ``in_flight``) dropped straight down, so it lands
+        soon, at a low speed. None is created where it would overlap a particle still falling:
+        stacking on those would raise every later layer further (a runaway rain).
         """
-        r_max = self.r * (1.0 + self.spread)
-        half = 0.5 * STRIP_RADII * self.r
-        lo, hi = max(xe - half, r_max), min(xe + half, self.length - r_max)
-        near = np.abs(pos[:, 0] - xe) < half + 3.0 * r_max
-        others_p, others_r = pos[near], rad[near]
-        moving = np.linalg.norm(vel[near], axis=1) > RESTING_SPEED
-        new_p: list[np.ndarray] = []
-        new_r: list[float] = []
-        for _ in range(n):
-            radius = self.r * (1.0 + self.spread * self.rng.uniform(-1.0, 1.0))
-            for _ in range(ATTEMPTS):
-                c = np.array([self.rng.uniform(lo, hi),
-                              self.rng.uniform(-0.5 * self.width + radius, 0.5 * self.width - radius), 0.0])
-                reach2 = (others_r + radius) ** 2 - ((others_p[:, :2] - c[:2]) ** 2).sum(axis=1)
-                under = reach2 > 0
-                if (under & moving).any():
-                    continue
-                touch = others_p[under, 2] + np.sqrt(reach2[under])
-                c[2] = max(radius, float(touch.max()) if touch.size else radius) + self.gap
-                new_p.append(c)
-                new_r.append(radius)
-                # Later particles of this step must clear this one, which has not moved yet.
-                others_p = np.vstack([others_p, c])
-                others_r = np.append(others_r, radius)
-                moving = np.append(moving, True)
-                break
-            else:
-                break
-        return np.array(new_p).reshape(-1, 3), np.array(new_r)
+        rng = self.rng
+        last = min(self.rear + self.rows, self.n_rows)
+        counts = np.zeros((last - self.rear, self.columns))
+        row = np.floor(pos[:, 0] / self.cell_x).astype(np.int64)
+        inside = (row >= self.rear) & (row < last)
+        col = np.clip(np.floor((pos[inside, 1] + 0.5 * self.width) / self.cell_y).astype(np.int64), 0, self.columns - 1)
+        np.add.at(counts, (row[inside] - self.rear, col), 1.0)
+        if counts[0].sum() >= self.quota[self.rear] * self.columns or self.tries >= ROW_PATIENCE * (
+                self.quota[self.rear] + 1.0):
+            self.rear, self.tries = self.rear + 1, 0
+            return np.zeros((0, 3)), np.zeros(0)
+        self.tries += 1
+        ix, iy = np.nonzero(counts < self.quota[self.rear:last, None])
+        ix = ix + self.rear
+        n = ix.size
+        radius = self.r * (1.0 + self.spread * rng.uniform(-1.0, 1.0, n))
+        cx = (ix + 0.5) * self.cell_x + (0.5 * self.cell_x - radius) * rng.uniform(-1.0, 1.0, n)
+        cy = -0.5 * self.width + (iy + 0.5) * self.cell_y + (0.5 * self.cell_y - radius) * rng.uniform(-1.0, 1.0, n)
+        lift = self.gap * (1.0 + rng.uniform(0.0, 1.0, n))
+        reach = 2.0 * self.r * (1.0 + self.spread)
+        near = (pos[:, 0] > self.rear * self.cell_x - reach) & (pos[:, 0] < last * self.cell_x + reach)
+        p, r = pos[near], rad[near]
+        flying = np.linalg.norm(vel[near], axis=1) > self.in_flight
+        reach2 = (r[None, :] + radius[:, None]) ** 2 - (p[None, :, 0] - cx[:, None]) ** 2 \
+            - (p[None, :, 1] - cy[:, None]) ** 2
+        rest = np.where((reach2 > 0.0) & ~flying[None, :], p[None, :, 2] + np.sqrt(np.maximum(reach2, 0.0)), 0.0)
+        cz = np.maximum(radius, rest.max(axis=1, initial=0.0)) + lift
+        clash = ((reach2 > (cz[:, None] - p[None, :, 2]) ** 2) & flying[None, :]).any(axis=1)
+        return np.column_stack([cx, cy, cz])[~clash], radius[~clash]
 
 
 def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -> Bed:
     """Build and settle the bed of ``scenario`` (``hill`` or ``step``) from a validated config.
 
     Uses ``bed.dt`` and ``bed.iterations`` for the solver, the ``solver`` section's gravity,
-    damping and overlap limit, ``material`` and ``seed``. Raises DozerlabError if the bed has not
-    settled within ``bed.max_settle_time`` simulated seconds or a particle left the domain.
+    damping and overlap limit, ``material`` and ``seed``. The strip makes one pass; then the bed
+    settles until the mean kinetic energy per particle is below ``bed.settle_kinetic_energy``.
+    Raises DozerlabError if it has not settled ``bed.max_settle_time`` simulated seconds after the
+    last layer, or a particle left the domain.
     """
     from tqdm import tqdm
 
@@ -181,27 +208,27 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         max_overlap=solver["max_overlap"],
     )
     _add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
-    max_steps = int(np.ceil(float(b["max_settle_time"]) / dt))
+    # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
+    emission_steps = int(np.ceil((emitter.n_rows + 2.0 * emitter.estimate / emitter.columns) * emitter.period / dt))
+    max_steps = emission_steps + int(np.ceil(float(b["max_settle_time"]) / dt))
     threshold = float(b["settle_kinetic_energy"])
     log_t: list[float] = []
     log_e: list[float] = []
     log_c: list[int] = []
-    emitted, backlog, energy, emission_time = 0, 0.0, np.inf, np.nan
+    layers, energy, emission_time = 0, np.inf, np.nan
     start = time.perf_counter()
-    bar = tqdm(total=max_steps, desc=f"bed {scenario}", unit="step", disable=not progress, file=None)
+    bar = tqdm(total=max_steps, desc=f"bed {scenario}", unit="step", disable=not progress)
     step = 0
     try:
         while step < max_steps:
-            if emitted < emitter.total:
-                backlog = min(backlog + emitter.rate * dt, float(emitter.total - emitted))
-                if int(backlog):
-                    new_p, new_r = emitter.place(int(backlog), emitter.position(emitted), world.positions,
-                                                 world.radii, world.velocities)
-                    if len(new_r):
-                        _add_particles(world, new_p, new_r, config)
-                        emitted += len(new_r)
-                        backlog -= len(new_r)
-                if emitted == emitter.total:
+            # Every layer due by the end of this step, each placed above the ones before it.
+            while not emitter.done and layers * emitter.period < (step + 1) * dt:
+                new_p, new_r = emitter.layer(world.positions, world.radii, world.velocities)
+                down = np.zeros((len(new_r), 3))
+                down[:, 2] = -emitter.drop_speed
+                _add_particles(world, new_p, new_r, config, velocities=down)
+                layers += 1
+                if emitter.done:
                     emission_time = (step + 1) * dt
             stats = world.step(1)
             step += 1
@@ -210,17 +237,26 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
                 log_t.append(step * dt)
                 log_e.append(energy)
                 log_c.append(int(stats.contacts))
-                bar.set_postfix(particles=emitted, ke=f"{energy:.2e}", refresh=False)
+                bar.set_postfix(particles=world.n_spheres, ke=f"{energy:.2e}", refresh=False)
             bar.update(1)
-            if emitted == emitter.total and energy < threshold:
+            if emitter.done and energy < threshold:
                 break
+            if not emitter.done and step >= emission_steps:
+                raise DozerlabError(
+                    f"bed {scenario}: the emitter strip reached only x = {emitter.rear * emitter.cell_x:.3g} m "
+                    f"of {emitter.length} m in {step * dt:.3g} s; the bed does not reach its target height "
+                    f"(check bed.packing_fraction and the scenarios heights)")
     finally:
         bar.close()
-    if emitted < emitter.total or energy >= threshold:
+    if step % log_every:
+        log_t.append(step * dt)
+        log_e.append(energy)
+        log_c.append(world.contact_count)
+    if energy >= threshold:
         raise DozerlabError(
-            f"bed {scenario} did not settle within bed.max_settle_time = {b['max_settle_time']} s "
-            f"({emitted}/{emitter.total} particles created, kinetic energy per particle {energy:.3g} J "
-            f"> bed.settle_kinetic_energy {threshold:g} J); raise max_settle_time or emitter_speed")
+            f"bed {scenario} did not settle within bed.max_settle_time = {b['max_settle_time']} s after "
+            f"the last layer (kinetic energy per particle {energy:.3g} J > bed.settle_kinetic_energy "
+            f"{threshold:g} J); raise bed.max_settle_time or bed.iterations")
     bed = Bed(
         scenario=scenario, length=emitter.length, width=emitter.width,
         positions=world.positions.copy(), radii=world.radii.copy(), masses=world.masses.copy(),
@@ -229,7 +265,8 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         settle_time=np.array(log_t), settle_kinetic_energy=np.array(log_e), settle_contacts=np.array(log_c),
         info={"time": step * dt, "steps": step, "emission_time": emission_time,
               "wall_time": time.perf_counter() - start, "dt": dt, "iterations": int(b["iterations"]),
-              "bed": dict(b), "shape": dict(config["scenarios"][scenario])},
+              "layers": layers, "bed": dict(b),
+              "shape": dict(config["scenarios"][scenario])},
     )
     _check_inside(bed)
     return bed
