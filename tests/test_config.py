@@ -42,3 +42,26 @@ def test_bad_values_name_field_and_range(doc, field, allowed):
 def test_missing_file_is_a_clear_error(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "nope.yaml")
+
+
+def _leaves(doc, prefix=""):
+    """Dotted paths of the scalar and list fields of a nested mapping."""
+    for key, value in doc.items():
+        if isinstance(value, dict):
+            yield from _leaves(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}"
+
+
+def test_quick_config_sets_every_field_the_default_sets():
+    # Snakemake lays quick.yaml over config.yaml key by key: a field only the default sets
+    # would leak into the quick sweep (a 1.2 m end margin on its 2 m bed, say).
+    from pathlib import Path
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[1] / "config"
+    default = yaml.safe_load((root / "config.yaml").read_text())
+    quick = yaml.safe_load((root / "quick.yaml").read_text())
+    assert set(_leaves(default)) <= set(_leaves(quick))
+    load_config(root / "quick.yaml")
