@@ -16,15 +16,17 @@ Coordinates ``x``, ``y``, ``z`` are bin centres in the blade frame (origin at th
 ``component`` is ``["x", "y", "z"]``.
 
 :class:`FieldStoreWriter` writes a store while a run produces it, in constant memory: it buffers
-one chunk of ``chunk_steps`` steps, then writes it. Each field chunk is a zarr *shard* holding
-one inner chunk per step, so whole-run reads decode large sequential shards while random batches
-of steps decode only the steps they ask for. The store is built in a temporary sibling that is
+one chunk of ``chunk_steps`` steps, then writes it. Each field chunk is a zarr *shard* of inner
+chunks of a few steps (8 by default): large enough that a whole-run read is not dominated by
+per-chunk overhead, small enough that a batch of steps decodes little it did not ask for
+(``benchmarks/field_store_read.py`` measured 1 step per inner chunk at half the read speed). The store is built in a temporary sibling that is
 renamed on a successful close, so a failed run leaves nothing behind.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import sys
 import warnings
 from collections.abc import Mapping
@@ -69,6 +71,8 @@ ATTRS = (
 )
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
+#: Steps per inner chunk of a shard.
+DEFAULT_INNER_STEPS = 8
 
 
 def default_codec() -> BloscCodec:
@@ -88,8 +92,8 @@ class FieldStoreWriter:
         attrs: store attributes (ARCHITECTURE.md); must be JSON-serialisable.
         chunk_steps: time steps per shard (>= 1).
         codec: the fields' compressor (default :func:`default_codec`).
-        inner_steps: time steps per inner chunk of a shard (1 <= inner_steps <= chunk_steps;
-            must divide chunk_steps).
+        inner_steps: time steps per inner chunk of a shard (must divide chunk_steps; default:
+            ``gcd(chunk_steps, DEFAULT_INNER_STEPS)``).
     """
 
     def __init__(
@@ -102,10 +106,12 @@ class FieldStoreWriter:
         attrs: Mapping[str, Any],
         chunk_steps: int = DEFAULT_CHUNK_STEPS,
         codec: Any = None,
-        inner_steps: int = 1,
+        inner_steps: int | None = None,
     ) -> None:
         if chunk_steps < 1:
             raise ValueError(f"chunk_steps must be >= 1, got {chunk_steps}")
+        if inner_steps is None:
+            inner_steps = math.gcd(chunk_steps, DEFAULT_INNER_STEPS)
         if not 1 <= inner_steps <= chunk_steps or chunk_steps % inner_steps:
             raise ValueError(f"inner_steps must divide chunk_steps={chunk_steps}, got {inner_steps}")
         self.coords = {}
