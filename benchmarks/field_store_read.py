@@ -9,7 +9,8 @@ granular bed filling the lower part of the volume, empty bins above it — and r
   targets: full read >= 1 GB/s and within 2x of the ``.npy`` read.
 
 Decoded GB/s counts the float32 bytes of velocity + density handed back. Both formats are read
-from the page cache right after writing, so the figures compare decoding, not disks.
+from the page cache right after writing, so the figures compare decoding, not disks; full reads
+are the best of three, for both formats, as the machine's load varies.
 
     python benchmarks/field_store_read.py [--steps 1500] [--table-steps 384] [--sampling]
 """
@@ -30,6 +31,8 @@ from dozerlab.fields.store import ATTRS, FieldStoreWriter, default_codec
 
 BINS = (48, 48, 20)
 BATCH = 64
+#: Full reads are timed this many times and the best kept, for zarr and .npy alike.
+REPEATS = 3
 
 
 def synthetic_steps(n: int, seed: int = 0):
@@ -61,12 +64,20 @@ def du(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
 
+def best_rate(read, repeats: int = REPEATS) -> float:
+    """Best decoded GB/s of ``repeats`` calls of ``read`` (which returns the bytes it read)."""
+    best = 0.0
+    for _ in range(repeats):
+        start = time.perf_counter()
+        nbytes = read()
+        best = max(best, nbytes / (time.perf_counter() - start) / 1e9)
+    return best
+
+
 def read_full(path: Path) -> float:
-    """Decoded GB/s of reading all of velocity and density with zarr."""
+    """Decoded GB/s of reading all of velocity and density with zarr (best of REPEATS)."""
     g = zarr.open_group(path, mode="r")
-    start = time.perf_counter()
-    nbytes = g["velocity"][:].nbytes + g["density"][:].nbytes
-    return nbytes / (time.perf_counter() - start) / 1e9
+    return best_rate(lambda: g["velocity"][:].nbytes + g["density"][:].nbytes)
 
 
 def windows(steps: int, batches: int, rng: np.random.Generator) -> list[int]:
@@ -94,9 +105,7 @@ def npy_reads(tmp: Path, steps: int, batches: int, rng: np.random.Generator) -> 
         vel[t], rho[t] = v, r
     vel.flush(), rho.flush()
     del vel, rho
-    start = time.perf_counter()
-    nbytes = np.load(tmp / "velocity.npy").nbytes + np.load(tmp / "density.npy").nbytes
-    full = nbytes / (time.perf_counter() - start) / 1e9
+    full = best_rate(lambda: np.load(tmp / "velocity.npy").nbytes + np.load(tmp / "density.npy").nbytes)
     v = np.load(tmp / "velocity.npy", mmap_mode="r")
     r = np.load(tmp / "density.npy", mmap_mode="r")
     nbytes, elapsed = 0, 0.0
