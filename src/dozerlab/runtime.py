@@ -41,6 +41,16 @@ def set_threads(n: int) -> int:
     return n
 
 
+def thread_budget() -> int:
+    """The job's thread count: ``OMP_NUM_THREADS`` (Snakemake's ``threads``, or what
+    :func:`set_threads` set), else the CPUs this process may run on."""
+    try:
+        n = int(os.environ.get("OMP_NUM_THREADS", ""))
+    except ValueError:
+        n = 0
+    return n if n >= 1 else len(os.sched_getaffinity(0))
+
+
 @contextmanager
 def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary sibling of ``path`` to write into; rename it to ``path`` on success.

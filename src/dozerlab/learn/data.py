@@ -93,14 +93,13 @@ def from_arrays(
 
 def load_store(path: str | Path) -> StoreData:
     """Read a whole field store into memory; a clear error if it lacks a variable."""
+    from dozerlab.fields.reader import read_field
     from dozerlab.fields.store import open_store
 
     ds = open_store(path)  # checks the schema: a missing variable is a ValueError naming it
     point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
-    velocity = ds["velocity"].transpose("time", "x", "y", "z", "component").values
-    density = ds["density"].transpose("time", "x", "y", "z").values
     return from_arrays(
-        velocity, density, ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
+        read_field(path, "velocity"), read_field(path, "density"), ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
         time=ds["time"].values, point=point, source=str(path),
     )
 

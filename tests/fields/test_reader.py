@@ -1,0 +1,54 @@
+"""The fast field reader gives exactly what zarr gives, and refuses corrupt shards."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zarr
+
+from dozerlab.fields.reader import read_field
+from dozerlab.fields.store import write_store
+
+WINDOWS = [(0, None), (0, 1), (3, 21), (8, 16), (60, 70), (63, 66), (69, None), (-5, None), (40, 30)]
+
+
+@pytest.mark.parametrize("codec", ["default", "none"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_read_field_equals_zarr(tmp_path, store_arrays, codec, threads):
+    options = {} if codec == "default" else {"codec": ()}
+    path = write_store(tmp_path / "f.zarr", chunk_steps=16, inner_steps=4, **options, **store_arrays)
+    for name in ("velocity", "density", "force", "time"):
+        arr = zarr.open_array(path / name, mode="r")
+        for start, stop in WINDOWS:
+            got = read_field(path, name, start, stop, threads=threads)
+            want = arr[slice(start, stop)]
+            assert got.shape == want.shape and got.dtype == want.dtype
+            np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(read_field(path, "velocity"), store_arrays["velocity"])
+
+
+def test_unwritten_inner_chunks_read_as_fill(tmp_path):
+    arr = zarr.create_array(tmp_path / "a", shape=(20, 2, 3), shards=(8, 2, 3), chunks=(4, 2, 3),
+                            dtype="f4", fill_value=0.0)
+    arr[9:11] = 5.0  # touches inner chunks 2 and 3 only; the rest of the shards stay unwritten
+    np.testing.assert_array_equal(read_field(tmp_path, "a"), arr[:])
+    np.testing.assert_array_equal(read_field(tmp_path, "a", 2, 14), arr[2:14])
+
+
+def test_corrupt_shard_index_is_refused(tmp_path, store_arrays):
+    path = write_store(tmp_path / "f.zarr", chunk_steps=64, **store_arrays)
+    shard = path / "velocity" / "c" / "0" / "0" / "0" / "0" / "0"
+    data = bytearray(shard.read_bytes())
+    data[-10] ^= 0xFF
+    shard.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="CRC32C"):
+        read_field(path, "velocity")
+    shard.write_bytes(bytes(data[:10]))
+    with pytest.raises(ValueError, match="shorter than its index"):
+        read_field(path, "velocity")
+
+
+def test_missing_array_is_named(tmp_path, store_arrays):
+    path = write_store(tmp_path / "f.zarr", **store_arrays)
+    with pytest.raises(FileNotFoundError, match="no array 'pressure'"):
+        read_field(path, "pressure")
