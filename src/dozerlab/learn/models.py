@@ -2,10 +2,15 @@
 
 Every model is a :class:`ForceModel`: raw store arrays in, force (N) and torque (N·m) out. It
 turns the fields into physically motivated channels per history step — the velocity relative
-to the blade (3), the density (1) and the momentum density relative to the blade ρ(v − v_b)
-(3), which is zero in empty bins — normalises them per channel with statistics of the training
-points, and passes them with the normalised blade velocity (the conditioning input) to a
-backbone that predicts the normalised targets. The normalisation lives in buffers of the
+to the blade (3), the density (1), the momentum density relative to the blade ρ(v − v_b) (3),
+which is zero in empty bins, and the momentum density ρv (3) — and, from the second history
+step on, the change of density and momentum density since the step before (4). The blade's
+force is, by the momentum balance of the material in front of it, largely the rate of change
+of that momentum: on the default sweep a ridge fit of per-column mass and momentum with their
+one-step changes cut the held-out force error from 27 % to 19 %, where a longer history of the
+same fields alone did not. The channels are normalised with statistics of the training points
+and passed with the normalised blade velocity (the conditioning input) to a backbone that
+predicts the normalised targets. The normalisation lives in buffers of the
 module, so a saved state dict is the whole model.
 """
 
@@ -19,8 +24,16 @@ from torch import nn
 from torch.nn import functional as F
 
 MODEL_NAMES = ("linear", "mlp", "cnn", "unet")
-CHANNELS_PER_STEP = 7
+#: Channels of each history step: v − v_b (3), ρ (1), ρ(v − v_b) (3), ρv (3).
+CHANNELS_PER_STEP = 10
+#: Channels of the change since the step before, for every step but the oldest: Δρ (1), Δ(ρv) (3).
+CHANNELS_PER_CHANGE = 4
 OUTPUTS = 6
+
+
+def n_channels(history: int) -> int:
+    """Input channels of a model with ``history`` steps."""
+    return CHANNELS_PER_STEP * history + CHANNELS_PER_CHANGE * (history - 1)
 
 
 class LinearHead(nn.Module):
@@ -149,7 +162,7 @@ class ForceModel(nn.Module):
         if kind not in BACKBONES:
             raise ValueError(f"model must be one of {list(BACKBONES)}, got {kind!r}")
         self.kind, self.grid, self.history = kind, tuple(int(n) for n in grid), int(history)
-        c_in, cond = CHANNELS_PER_STEP * self.history, 3 * self.history
+        c_in, cond = n_channels(self.history), 3 * self.history
         self.backbone = BACKBONES[kind](c_in, cond, self.grid)
         for name, n in (("chan_mean", c_in), ("cond_mean", cond), ("y_mean", OUTPUTS)):
             self.register_buffer(name, torch.zeros(n))
@@ -162,12 +175,18 @@ class ForceModel(nn.Module):
 
     @staticmethod
     def raw_features(velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Unnormalised channels (B, 7H, X, Y, Z) and conditioning (B, 3H)."""
+        """Unnormalised channels (B, n_channels(H), X, Y, Z) and conditioning (B, 3H).
+
+        Channels: the H steps' own channels (oldest first), then the H − 1 changes."""
         rel = velocity - blade_velocity[:, :, None, None, None, :]
         rho = density.unsqueeze(-1)
-        ch = torch.cat([rel, rho, rho * rel], dim=-1)  # B, H, X, Y, Z, 7
-        b, h = ch.shape[:2]
-        ch = ch.permute(0, 1, 5, 2, 3, 4).reshape(b, h * CHANNELS_PER_STEP, *ch.shape[2:5])
+        mom = rho * velocity
+        b, h = velocity.shape[:2]
+        parts = [torch.cat([rel, rho, rho * rel, mom], dim=-1)]  # B, H, X, Y, Z, 10
+        if h > 1:
+            state = torch.cat([rho, mom], dim=-1)
+            parts.append(state[:, 1:] - state[:, :-1])  # B, H-1, X, Y, Z, 4
+        ch = torch.cat([p.permute(0, 1, 5, 2, 3, 4).flatten(1, 2) for p in parts], dim=1)
         return ch.contiguous(), blade_velocity.reshape(b, -1)
 
     def inputs(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

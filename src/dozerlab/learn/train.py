@@ -15,7 +15,7 @@ import torch
 from tqdm import tqdm
 
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
-from dozerlab.learn.models import CHANNELS_PER_STEP, ForceModel
+from dozerlab.learn.models import ForceModel
 from dozerlab.runtime import DozerlabError
 
 EpochCallback = Callable[[int, float, float], None]
@@ -68,36 +68,30 @@ class Batches:
             yield self.get(np.arange(start, min(start + size, len(self))))
 
 
+@torch.no_grad()
 def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> None:
     """Set the model's channel, conditioning and target statistics from the training samples."""
-    rows = np.unique(train.samples.rows(np.arange(len(train))))
-    s = torch.zeros(CHANNELS_PER_STEP, dtype=torch.float64, device=train.device)
-    s2, n = torch.zeros_like(s), 0
-    for start in range(0, rows.size, chunk):
-        r = torch.from_numpy(rows[start:start + chunk]).to(train.device)
-        x, _ = model.raw_features(train.velocity[r, None], train.density[r, None], train.blade_velocity[r, None])
-        x = x.double()
-        s += x.sum(dim=(0, 2, 3, 4))
-        s2 += (x * x).sum(dim=(0, 2, 3, 4))
-        n += x.shape[0] * x[0, 0].numel()
-    mean = s / n
-    std = torch.sqrt(torch.clamp(s2 / n - mean * mean, min=0.0))
-    r = torch.from_numpy(rows).to(train.device)
-    vb = train.blade_velocity[r].double()
-    y = train.target[torch.from_numpy(train.samples.index).to(train.device)].double()
-    h = model.history
+    sums: dict[str, torch.Tensor] = {}
+    n_bins = n_cond = 0
+    for v, rho, vb, y in train.chunks(chunk):
+        x, c = model.raw_features(v, rho, vb)
+        x, c, y = x.double(), c.double(), y.double()
+        for name, value in (("x", x.sum(dim=(0, 2, 3, 4))), ("x2", (x * x).sum(dim=(0, 2, 3, 4))),
+                            ("c", c.sum(0)), ("c2", (c * c).sum(0)), ("y", y.sum(0)), ("y2", (y * y).sum(0))):
+            sums[name] = sums[name] + value if name in sums else value
+        n_bins += x.shape[0] * x[0, 0].numel()
+        n_cond += x.shape[0]
 
-    def safe(sd: torch.Tensor) -> torch.Tensor:
+    def mean_std(name: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        mean = sums[name] / n
+        sd = torch.sqrt(torch.clamp(sums[name + "2"] / n - mean * mean, min=0.0))
         # A channel constant over the training points (no lateral blade motion, say) is centred only.
-        return torch.where(sd > 1e-6 * (sd.max() + 1e-30), sd, torch.ones_like(sd))
+        return mean, torch.where(sd > 1e-6 * (sd.max() + 1e-30), sd, torch.ones_like(sd))
 
-    with torch.no_grad():
-        model.chan_mean.copy_(mean.repeat(h))
-        model.chan_std.copy_(safe(std).repeat(h))
-        model.cond_mean.copy_(vb.mean(0).repeat(h))
-        model.cond_std.copy_(safe(vb.std(0, unbiased=False)).repeat(h))
-        model.y_mean.copy_(y.mean(0))
-        model.y_std.copy_(safe(y.std(0, unbiased=False)))
+    for key, buffers, n in (("x", ("chan_mean", "chan_std"), n_bins), ("c", ("cond_mean", "cond_std"), n_cond),
+                            ("y", ("y_mean", "y_std"), n_cond)):
+        for buffer, value in zip(buffers, mean_std(key, n), strict=True):
+            getattr(model, buffer).copy_(value)
 
 
 @torch.no_grad()
