@@ -68,6 +68,28 @@ class Batches:
             yield self.get(np.arange(start, min(start + size, len(self))))
 
 
+#: Sign of each target under the mirror y → −y: force_y and the axial torque_x, torque_z flip.
+_MIRROR_TARGET = (1.0, -1.0, 1.0, -1.0, 1.0, -1.0)
+
+
+def mirror_y(
+    velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor, target: torch.Tensor,
+    mask: torch.Tensor,
+) -> None:
+    """Reflect the samples where ``mask`` holds across the blade's centre plane, in place.
+
+    Beds and blade are symmetric in y (SPEC §4), so the reflected sample is as valid as the
+    original: bins are reversed along y, the y components of velocities and force change sign,
+    and so do torque_x and torque_z (axial vector, torque about the tip). Shapes as
+    :meth:`Batches.get` returns them.
+    """
+    flip = torch.tensor([1.0, -1.0, 1.0], device=velocity.device)
+    velocity[mask] = velocity[mask].flip(3) * flip
+    density[mask] = density[mask].flip(3)
+    blade_velocity[mask] = blade_velocity[mask] * flip
+    target[mask] = target[mask] * torch.tensor(_MIRROR_TARGET, device=target.device)
+
+
 @torch.no_grad()
 def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> None:
     """Set the model's channel, conditioning and target statistics from the training samples."""
@@ -197,6 +219,8 @@ def _fit_gradient(
         for start in range(0, len(order), learn["batch_size"]):
             t_data = time.perf_counter()
             v, rho, vb, y = train.get(order[start:start + learn["batch_size"]])
+            if learn["mirror"]:
+                mirror_y(v, rho, vb, y, torch.from_numpy(gen.random(y.shape[0]) < 0.5).to(y.device))
             result.data_seconds += time.perf_counter() - t_data
             loss = torch.nn.functional.mse_loss(model.normalized(v, rho, vb), (y - model.y_mean) / model.y_std)
             value = float(loss.detach())
