@@ -34,9 +34,10 @@ def synthetic(grid: tuple[int, int, int], steps: int, seed: int):  # type: ignor
 
 @torch.no_grad()
 def latency(model: torch.nn.Module, store, device: torch.device, repeats: int = 20) -> float:  # type: ignore[no-untyped-def]
-    """Seconds per single-step prediction (batch of 1)."""
+    """Seconds per single-step prediction (batch of 1, with the model's history)."""
     model = model.to(device).eval()
-    args = [torch.from_numpy(a[:1, None]).to(device) for a in (store.velocity, store.density, store.blade_velocity)]
+    h = model.history  # one prediction: the current step and its history
+    args = [torch.from_numpy(a[None, :h]).to(device) for a in (store.velocity, store.density, store.blade_velocity)]
     model(*args)
     if device.type == "cuda":
         torch.cuda.synchronize()
@@ -61,7 +62,8 @@ def main() -> None:
     stores = [synthetic(tuple(args.grid), args.steps, k) for k in range(args.stores)]
     config = load_config({"learn": {"epochs": args.epochs, "patience": args.epochs}})
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    print(f"grid {tuple(args.grid)}, {args.stores}×{args.steps} steps, {args.epochs} epochs, {args.threads} threads")
+    print(f"grid {tuple(args.grid)}, {args.stores}×{args.steps} steps, {args.epochs} epochs, {args.threads} threads, "
+          f"history {config['learn']['history']}")
     print(f"{'model':8s} {'device':6s} {'samples/s':>10s} {'data wait':>10s} {'latency/step':>13s}")
     for device in devices:
         for kind in args.models:
