@@ -99,7 +99,8 @@ def load_store(path: str | Path) -> StoreData:
     ds = open_store(path)  # checks the schema: a missing variable is a ValueError naming it
     point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
     return from_arrays(
-        read_field(path, "velocity"), read_field(path, "density"), ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
+        read_field(path, "velocity"), read_field(path, "density"),
+        ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
         time=ds["time"].values, point=point, source=str(path),
     )
 

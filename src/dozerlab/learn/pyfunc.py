@@ -18,9 +18,6 @@ from __future__ import annotations
 
 import json
 import tempfile
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -128,23 +125,15 @@ def model_kwargs(model: ForceModel, meta: dict[str, Any], workdir: Path, example
     }
 
 
-@contextmanager
-def _quiet_type_hints() -> Iterator[None]:
-    """Silence MLflow's advice to type-hint ``predict``: :func:`signature` is the schema."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*Add type hints to the `predict` method")
-        yield
-
-
 def save(model: ForceModel, meta: dict[str, Any], path: str | Path, example: dict[str, np.ndarray]) -> None:
     """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist)."""
-    with tempfile.TemporaryDirectory() as tmp, _quiet_type_hints():
+    with tempfile.TemporaryDirectory() as tmp:
         mlflow.pyfunc.save_model(path=str(path), **model_kwargs(model, meta, Path(tmp), example))
 
 
 def log(model: ForceModel, meta: dict[str, Any], example: dict[str, np.ndarray]) -> Any:
     """Log ``model`` to the active MLflow run as the model named ``model``."""
-    with tempfile.TemporaryDirectory() as tmp, _quiet_type_hints():
+    with tempfile.TemporaryDirectory() as tmp:
         return mlflow.pyfunc.log_model(name="model", **model_kwargs(model, meta, Path(tmp), example))
 
 
