@@ -25,9 +25,24 @@ def test_split_is_a_trailing_block_per_store_and_history_stays_in_store():
     assert all(((r >= starts[s]) & (r < starts[s] + (40, 60)[s])).all() for r, s in zip(rows, samples.store_of))
 
 
-def test_normalisation_uses_training_block_only():
+def test_spread_blocks_cover_the_run_and_no_training_input_touches_them():
+    store = in_memory(0.5, 0.05, steps=203, seed=1)
+    samples = concat([store], history=3)
+    train, val = split_train_validation(samples, 0.15, block=10)
+    assert 0.1 < len(val) / len(samples) < 0.2
+    assert val.index.min() < 100 < val.index.max()  # not just the end of the run
+    train_rows = set(train.rows(np.arange(len(train))).ravel())
+    assert train_rows.isdisjoint(val.index)
+    assert set(train.index).isdisjoint(val.index)
+    # a store shorter than four blocks keeps the trailing block
+    short_train, short_val = split_train_validation(concat([in_memory(0.5, 0.05, steps=30, seed=1)], 3), 0.25, block=10)
+    assert short_train.index.max() < short_val.index.min() and short_val.index.max() == 29
+
+
+@pytest.mark.parametrize("block", [0, 5])
+def test_normalisation_uses_training_block_only(block):
     store = in_memory(1.0, 0.1, steps=50, seed=3)
-    train, val = split_train_validation(concat([store], 1), 0.2)
+    train, val = split_train_validation(concat([store], 1), 0.2, block)
     store.target[val.index] = 1e9  # only the validation block is poisoned
     store.density[val.index] = 1e9
     model = ForceModel("linear", store.grid)

@@ -50,3 +50,22 @@ def test_seeded_training_is_reproducible(train_stores, config):
     a = train_model("mlp", train_stores[:2], config, progress=False)
     b = train_model("mlp", train_stores[:2], config, progress=False)
     assert a.val_loss == b.val_loss
+
+
+def test_linear_model_is_mirror_equivariant(train_stores, config):
+    from dozerlab.learn.train import mirror_y
+
+    config["learn"]["history"] = 2
+    model = train_model("linear", train_stores, config, progress=False).model
+    s = train_stores[0]
+    rows = np.arange(1, 21)[:, None] + np.arange(-1, 1)[None, :]
+    v, rho, vb = (torch.from_numpy(a[rows]).clone() for a in (s.velocity, s.density, s.blade_velocity))
+    rho = rho * torch.linspace(0.5, 1.5, rho.shape[3])[:, None]  # a lopsided pile: odd features are not zero
+    y = torch.zeros(v.shape[0], 6)
+    with torch.no_grad():
+        pred = model(v, rho, vb)
+        mirror_y(v, rho, vb, y, torch.ones(v.shape[0], dtype=torch.bool))
+        mirrored = model(v, rho, vb)
+    assert pred[:, 1].abs().max() > 0  # the odd targets see the imbalance
+    parity = torch.tensor([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
+    torch.testing.assert_close(mirrored, pred * parity, rtol=1e-4, atol=1e-3 * float(pred.abs().max()))

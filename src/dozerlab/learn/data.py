@@ -7,10 +7,11 @@ H steps uses steps t-H+1 … t of one store and is labelled with the force/torqu
 
 The split is by sweep point: the stores passed to training are the training points; held-out
 points (interpolation, extrapolation) are only ever read by validation. Early stopping needs
-its own data, so the last ``validation_fraction`` of each training store (a contiguous block,
-the end of the run) is kept out of the gradient and out of the normalisation statistics. It is
-the same sweep point as the training block, so its loss is optimistic; the held-out points are
-the real measure.
+its own data, so ``validation_fraction`` of each training store is kept out of the gradient and
+out of the normalisation statistics: short blocks spread over the run by default, since a run's
+end (the largest pile, the blade near its goal) is not like the rest of it, and a model stopped
+on it stops early and extrapolates worse (BENCHMARKS.md). It is the same sweep point as the
+training samples, so its loss is optimistic; the held-out points are the real measure.
 """
 
 from __future__ import annotations
@@ -167,16 +168,34 @@ def concat(stores: list[StoreData], history: int) -> Samples:
                    np.concatenate(index), np.concatenate(store_of), history)
 
 
-def split_train_validation(samples: Samples, fraction: float) -> tuple[Samples, Samples]:
-    """Split each store's samples into a leading training block and a trailing block of
-    ``fraction`` for early stopping (at least one sample each)."""
+def split_train_validation(samples: Samples, fraction: float, block: int = 0) -> tuple[Samples, Samples]:
+    """Split each store's samples into training samples and ``fraction`` of them for early stopping.
+
+    ``block > 0``: the validation samples are every k-th block of ``block`` consecutive samples
+    (k = round(1 / fraction)), spread over the run so that they see the same phases of it as the
+    training samples; the ``history`` samples after each validation block, whose inputs overlap
+    it, are used for neither. ``block == 0``, or a store shorter than four blocks: one trailing
+    block (the end of the run). At least one sample each.
+    """
     if not 0 < fraction < 1:
         raise ValueError(f"learn.validation_fraction must be in (0, 1), got {fraction}")
+    if block < 0:
+        raise ValueError(f"learn.validation_block must be >= 0, got {block}")
     is_val = np.zeros(len(samples), dtype=bool)
+    unused = np.zeros(len(samples), dtype=bool)
     for k in np.unique(samples.store_of):
         where = np.flatnonzero(samples.store_of == k)
-        if where.size < 2:
-            raise DozerlabError(f"store {k} has {where.size} sample(s); at least 2 are needed to split")
-        n_val = min(max(1, int(round(fraction * where.size))), where.size - 1)
-        is_val[where[-n_val:]] = True
-    return samples.subset(~is_val), samples.subset(is_val)
+        n = where.size
+        if n < 2:
+            raise DozerlabError(f"store {k} has {n} sample(s); at least 2 are needed to split")
+        if 0 < block and 4 * block <= n:
+            every = max(2, round(1.0 / fraction))
+            val = (np.arange(n) // block) % every == every // 2
+            after = np.zeros(n, dtype=bool)
+            for end in np.flatnonzero(val[:-1] & ~val[1:]) + 1:
+                after[end:end + samples.history] = True
+            is_val[where[val]] = True
+            unused[where[after & ~val]] = True
+        else:
+            is_val[where[-min(max(1, round(fraction * n)), n - 1):]] = True
+    return samples.subset(~is_val & ~unused), samples.subset(is_val)

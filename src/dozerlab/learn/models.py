@@ -35,19 +35,61 @@ def n_channels(history: int) -> int:
     return CHANNELS_PER_STEP * history + CHANNELS_PER_CHANGE * (history - 1)
 
 
+#: Parity of each target under the mirror y → −y (bed and blade are symmetric in y, SPEC §4):
+#: force_y and the torques about the x and z axes (axial vectors) change sign.
+TARGET_PARITY = (1.0, -1.0, 1.0, -1.0, 1.0, -1.0)
+
+
+def channel_parity(history: int) -> tuple[list[float], list[float]]:
+    """Parity under the mirror y → −y of each input channel and each conditioning entry of a
+    model with ``history`` steps: the y components of velocities and momenta are odd."""
+    step = [1.0, -1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, -1.0, 1.0]  # v−v_b, ρ, ρ(v−v_b), ρv
+    change = [1.0, 1.0, -1.0, 1.0]  # Δρ, Δ(ρv)
+    return step * history + change * (history - 1), [1.0, -1.0, 1.0] * history
+
+
 class LinearHead(nn.Module):
-    """Ridge regression on the flattened channels and the conditioning (fitted in closed form)."""
+    """Ridge regression on per-(x, z)-column features, equivariant under the mirror y → −y
+    (fitted in closed form).
+
+    The force on a blade as wide as the sampling volume is a sum over the material across
+    it, so each channel enters through its sum over y and its first moment Σ y·x (the
+    lateral imbalance, which drives force_y and the x/z torques). Under the mirror a feature is
+    even or odd — the y-sum of an even channel or the moment of an odd one is even — and so is
+    each target; even targets are fitted on the even features only and odd ones on the odd
+    ones, so the prediction for a mirrored sample is exactly the mirrored prediction. Each target
+    has Ny× fewer weights than in a ridge on every bin, and it generalises better (BENCHMARKS.md).
+    """
 
     def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int]) -> None:
         super().__init__()
-        self.fc = nn.Linear(in_channels * grid[0] * grid[1] * grid[2] + cond, OUTPUTS)
+        history = cond // 3
+        chan, cond_par = channel_parity(history)
+        if len(chan) != in_channels:
+            raise ValueError(f"linear: {in_channels} channels do not match a history of {history} steps")
+        self.register_buffer("y_coord", torch.linspace(-1.0, 1.0, grid[1]).view(1, 1, 1, -1, 1), persistent=False)
+        self.register_buffer("chan_odd", torch.tensor(chan) < 0, persistent=False)
+        self.register_buffer("cond_odd", torch.tensor(cond_par) < 0, persistent=False)
+        self.register_buffer("target_odd", torch.tensor(TARGET_PARITY) < 0, persistent=False)
+        columns, n_odd = in_channels * grid[0] * grid[2], int(self.cond_odd.sum())
+        self.even = nn.Linear(columns + cond - n_odd, 3)
+        self.odd = nn.Linear(columns + n_odd, 3)
 
-    def design(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        """The design matrix rows (B, D) of inputs x (B, C, X, Y, Z) and c (B, cond)."""
-        return torch.cat([x.flatten(1), c], dim=1)
+    def designs(self, x: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The even and odd design-matrix rows, (B, D_even) and (B, D_odd), of inputs
+        x (B, C, X, Y, Z) and c (B, cond)."""
+        total, moment = x.sum(dim=3), (x * self.y_coord).sum(dim=3)  # B, C, X, Z
+        odd = self.chan_odd[None, :, None, None]
+        even_f = torch.where(odd, moment, total).flatten(1)
+        odd_f = torch.where(odd, total, moment).flatten(1)
+        return torch.cat([even_f, c[:, ~self.cond_odd]], dim=1), torch.cat([odd_f, c[:, self.cond_odd]], dim=1)
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        return self.fc(self.design(x, c))
+        even, odd = self.designs(x, c)
+        out = torch.empty(x.shape[0], OUTPUTS, dtype=x.dtype, device=x.device)
+        out[:, ~self.target_odd] = self.even(even)
+        out[:, self.target_odd] = self.odd(odd)
+        return out
 
 
 class MLP(nn.Module):

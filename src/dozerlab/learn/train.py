@@ -15,7 +15,7 @@ import torch
 from tqdm import tqdm
 
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
-from dozerlab.learn.models import ForceModel
+from dozerlab.learn.models import TARGET_PARITY, ForceModel, channel_parity
 from dozerlab.runtime import DozerlabError
 
 EpochCallback = Callable[[int, float, float], None]
@@ -68,10 +68,6 @@ class Batches:
             yield self.get(np.arange(start, min(start + size, len(self))))
 
 
-#: Sign of each target under the mirror y → −y: force_y and the axial torque_x, torque_z flip.
-_MIRROR_TARGET = (1.0, -1.0, 1.0, -1.0, 1.0, -1.0)
-
-
 def mirror_y(
     velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor, target: torch.Tensor,
     mask: torch.Tensor,
@@ -87,12 +83,15 @@ def mirror_y(
     velocity[mask] = velocity[mask].flip(3) * flip
     density[mask] = density[mask].flip(3)
     blade_velocity[mask] = blade_velocity[mask] * flip
-    target[mask] = target[mask] * torch.tensor(_MIRROR_TARGET, device=target.device)
+    target[mask] = target[mask] * torch.tensor(TARGET_PARITY, device=target.device)
 
 
 @torch.no_grad()
 def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> None:
-    """Set the model's channel, conditioning and target statistics from the training samples."""
+    """Set the model's channel, conditioning and target statistics from the training samples.
+
+    Quantities that are odd under the mirror y → −y (lateral velocities, force_y, …) are
+    centred at zero, as the symmetry of beds and blade says, and scaled by their RMS."""
     sums: dict[str, torch.Tensor] = {}
     n_bins = n_cond = 0
     for v, rho, vb, y in train.chunks(chunk):
@@ -104,8 +103,12 @@ def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> No
         n_bins += x.shape[0] * x[0, 0].numel()
         n_cond += x.shape[0]
 
+    chan_par, cond_par = channel_parity(model.history)
+    odd = {key: torch.tensor(par, device=sums["y"].device) < 0
+           for key, par in (("x", chan_par), ("c", cond_par), ("y", TARGET_PARITY))}
+
     def mean_std(name: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-        mean = sums[name] / n
+        mean = torch.where(odd[name], 0.0, sums[name] / n)
         sd = torch.sqrt(torch.clamp(sums[name + "2"] / n - mean * mean, min=0.0))
         # A channel constant over the training points (no lateral blade motion, say) is centred only.
         return mean, torch.where(sd > 1e-6 * (sd.max() + 1e-30), sd, torch.ones_like(sd))
@@ -138,32 +141,40 @@ def _guard(value: float, what: str) -> None:
 
 @torch.no_grad()
 def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256) -> None:
-    """Closed-form ridge regression of the normalised targets: minimises mean squared error +
-    ``alpha``·‖w‖² (intercept unpenalised). Solved in the dual (N×N) when features outnumber
-    samples, so it cannot diverge."""
+    """Closed-form ridge regression of the normalised targets, one solve per target parity:
+    minimises mean squared error + ``alpha``·‖w‖² over standardised design columns (intercept
+    unpenalised). Solved in the dual (N×N) when features outnumber samples; it cannot diverge."""
     if alpha < 0:
         raise ValueError(f"learn.ridge_alpha must be >= 0, got {alpha}")
     head = model.backbone
-    rows, ys = [], []
+    rows: list[list[torch.Tensor]] = [[], []]
+    ys = []
     for v, rho, vb, y in train.chunks(chunk):
-        rows.append(head.design(*model.inputs(v, rho, vb)).double())
+        for part, design in zip(rows, head.designs(*model.inputs(v, rho, vb)), strict=True):
+            part.append(design.double())
         ys.append(((y - model.y_mean) / model.y_std).double())
-    x, y = torch.cat(rows), torch.cat(ys)
-    n, d = x.shape
-    xm, ym = x.mean(0), y.mean(0)
-    x -= xm
-    lam = alpha * n + 1e-9 * n
-    if d > n:
-        gram = x @ x.T
-        gram.diagonal().add_(lam)
-        w = x.T @ torch.linalg.solve(gram, y - ym)
-    else:
-        a = x.T @ x
-        a.diagonal().add_(lam)
-        w = torch.linalg.solve(a, x.T @ (y - ym))
-    _guard(float(w.abs().max()), "the ridge solution")
-    head.fc.weight.copy_(w.T.float())
-    head.fc.bias.copy_((ym - xm @ w).float())
+    y_all = torch.cat(ys)
+    for fc, part, odd in ((head.even, rows[0], False), (head.odd, rows[1], True)):
+        x, y = torch.cat(part), y_all[:, head.target_odd == odd]
+        n, d = x.shape
+        # odd features and targets have zero mean by symmetry: no intercept, so that the odd
+        # prediction changes sign exactly with the mirrored input
+        xm, ym = (torch.zeros_like(x[0]), torch.zeros_like(y[0])) if odd else (x.mean(0), y.mean(0))
+        xs = x.std(0).clamp_min(1e-12)
+        x = (x - xm) / xs
+        lam = alpha * n + 1e-9 * n
+        if d > n:
+            gram = x @ x.T
+            gram.diagonal().add_(lam)
+            w = x.T @ torch.linalg.solve(gram, y - ym)
+        else:
+            a = x.T @ x
+            a.diagonal().add_(lam)
+            w = torch.linalg.solve(a, x.T @ (y - ym))
+        w = w / xs[:, None]
+        _guard(float(w.abs().max()), "the ridge solution")
+        fc.weight.copy_(w.T.float())
+        fc.bias.copy_((ym - xm @ w).float())
 
 
 def train_model(
@@ -177,15 +188,16 @@ def train_model(
 ) -> TrainResult:
     """Train model ``kind`` on ``stores`` (the training points) with ``config['learn']``.
 
-    The last ``learn.validation_fraction`` of each store is held out for early stopping;
-    normalisation uses the rest. ``on_epoch(epoch, train_loss, val_loss)`` is called after
+    ``learn.validation_fraction`` of each store (blocks of ``learn.validation_block`` steps spread
+    over the run, or its end when that is 0) is held out for early stopping; normalisation uses
+    the rest. ``on_epoch(epoch, train_loss, val_loss)`` is called after
     each epoch (losses: normalised MSE). Raises :class:`TrainingDiverged` on NaN/inf.
     """
     learn, seed = config["learn"], int(config.get("seed", 0))
     torch.manual_seed(seed)
     dev = device_for(device)
     samples = concat(stores, learn["history"])
-    train_s, val_s = split_train_validation(samples, learn["validation_fraction"])
+    train_s, val_s = split_train_validation(samples, learn["validation_fraction"], learn["validation_block"])
     train, val = Batches(train_s, dev), Batches(val_s, dev)
     model = ForceModel(kind, stores[0].grid, learn["history"]).to(dev)
     fit_normalization(model, train)
