@@ -6,8 +6,8 @@ to the blade (3), the density (1), the momentum density relative to the blade ρ
 which is zero in empty bins, and the momentum density ρv (3) — and, from the second history
 step on, the change of density and momentum density since the step before (4). The blade's
 force is, by the momentum balance of the material in front of it, largely the rate of change
-of that momentum: on the default sweep a ridge fit of per-column mass and momentum with their
-one-step changes cut the held-out force error from 27 % to 19 % (BENCHMARKS.md). The channels
+of that momentum: on the 10 cm-grain sweep a ridge fit of per-column mass and momentum with
+their one-step changes cut the held-out force error from 27 % to 19 % (BENCHMARKS.md). The channels
 are normalised with statistics of the training points and passed with the normalised blade
 velocity (the conditioning input) to a backbone that predicts the normalised targets. The
 normalisation lives in buffers of the module, so a saved state dict is the whole model.
