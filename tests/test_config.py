@@ -2,7 +2,7 @@ import json
 
 import pytest
 
-from dozerlab.config import ConfigError, load_config
+from dozerlab.config import ConfigError, ConfigWarning, load_config
 
 
 def test_defaults_fill_a_partial_document():
@@ -65,3 +65,18 @@ def test_quick_config_sets_every_field_the_default_sets():
     quick = yaml.safe_load((root / "quick.yaml").read_text())
     assert set(_leaves(default)) <= set(_leaves(quick))
     load_config(root / "quick.yaml")
+
+
+@pytest.mark.parametrize("name", ["config.yaml", "quick.yaml"])
+def test_shipped_configs_leave_no_wedging_gap(name, recwarn):
+    from pathlib import Path
+
+    load_config(Path(__file__).resolve().parents[1] / "config" / name)
+    load_config({})
+    assert not [w for w in recwarn if issubclass(w.category, ConfigWarning)]
+
+
+def test_a_gap_where_grains_wedge_is_flagged():
+    # 5 cm grains, 5 cm between each blade end and wall: one grain jams there
+    with pytest.warns(ConfigWarning, match=r"'bed.width' and 'blade.width'.*1 grain diameters"):
+        load_config({"bed": {"width": 0.8, "radius": 0.025}, "blade": {"width": 0.7}})

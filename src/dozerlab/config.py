@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import json
+import warnings
 from collections.abc import Mapping
 from functools import cache
 from importlib import resources
@@ -24,6 +25,35 @@ from dozerlab.runtime import DozerlabError
 
 class ConfigError(DozerlabError, ValueError):
     """A configuration value outside what the schema allows."""
+
+
+class ConfigWarning(UserWarning):
+    """A valid configuration that sets up an unphysical scene."""
+
+
+#: Lateral gaps between blade end and side wall, in mean grain diameters, from which grains no
+#: longer jam there: with a 1-diameter gap on the default sweep they wedged and dragged along
+#: the walls, a third of the pushing force and ±2 kN sideways, outside the sampling volume; with
+#: 3 diameters the sideways force fell to 0.2 kN (BENCHMARKS.md).
+FREE_GAP_DIAMETERS = 3.0
+
+
+def check_geometry(config: Mapping[str, Any]) -> None:
+    """Warn (:class:`ConfigWarning`) when a grain fits between the blade's ends and the side
+    walls but the gap is narrower than ``FREE_GAP_DIAMETERS`` mean diameters: grains wedge there.
+    ``config`` is a validated document."""
+    bed, blade = config["bed"], config["blade"]
+    gap = 0.5 * (bed["width"] - blade["width"])
+    diameter = 2.0 * bed["radius"]
+    smallest = diameter * (1.0 - bed["radius_dispersion"])
+    if smallest <= gap < FREE_GAP_DIAMETERS * diameter:
+        warnings.warn(
+            f"config fields 'bed.width' and 'blade.width': the {gap:.3g} m gap between each blade end "
+            f"and side wall is {gap / diameter:.2g} grain diameters; grains wedge in it and drag on the "
+            f"walls, a force the fields in front of the blade do not see (make it < {smallest:.3g} m, "
+            f"the smallest grain, or >= {FREE_GAP_DIAMETERS * diameter:.3g} m)",
+            ConfigWarning, stacklevel=3,
+        )
 
 
 @cache
@@ -80,6 +110,7 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
             field = ".".join(str(p) for p in e.absolute_path) or "<top level>"
             lines.append(f"config field '{field}': {e.message} ({_allowed(e)})")
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
+    check_geometry(doc)
     return doc
 
 
