@@ -8,6 +8,7 @@ invocation — each job's run is a child of that run. ``DOZERLAB_MLFLOW=0`` turn
 
 from __future__ import annotations
 
+import fcntl
 import os
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -22,12 +23,33 @@ def enabled() -> bool:
     return os.environ.get("DOZERLAB_MLFLOW", "1") != "0"
 
 
+@contextmanager
+def _store_lock(uri: str) -> Iterator[None]:
+    """Hold an exclusive lock next to a local SQLite store (``<db>.lock``); other URIs need none.
+
+    Jobs started together on a fresh store would each create its tables and experiment, and all
+    but one fail ("table ... already exists"); under the lock the first creates them and the
+    others find them."""
+    prefix = "sqlite:///"
+    if not uri.startswith(prefix):
+        yield
+        return
+    with open(uri[len(prefix):] + ".lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 def configure(experiment: str = "dozerlab") -> str:
     """Point MLflow at the tracking store and experiment; return the experiment id."""
     import mlflow
 
-    mlflow.set_tracking_uri(os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI))
-    return mlflow.set_experiment(experiment).experiment_id
+    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    mlflow.set_tracking_uri(uri)
+    with _store_lock(uri):
+        return mlflow.set_experiment(experiment).experiment_id
 
 
 def flatten(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
