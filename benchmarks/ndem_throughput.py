@@ -83,8 +83,10 @@ def main(argv: list[str] | None = None) -> None:
     build_bed(world, args.particles, args.radius, args.seed)
     t0 = time.perf_counter()
     world.step()
-    print(f"first step (includes compiling or loading kernels): {time.perf_counter() - t0:.1f} s",
-          file=sys.stderr)
+    print(
+        f"first step (includes compiling or loading kernels): {time.perf_counter() - t0:.1f} s",
+        file=sys.stderr,
+    )
     for _ in tqdm(range(args.settle), desc="settling", file=sys.stderr):
         world.step()
     rows = 0
@@ -102,8 +104,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"residual (m/s)       {stats.residual:.3e}")
     print(f"max overlap          {stats.max_overlap_fraction:.3f} of the radius")
     if threads > 1:
-        print(f"machine ceiling      {parallel_ceiling(threads):.2f}x from 1 to {threads} threads "
-              "(a perfectly parallel compute loop)")
+        print(
+            f"machine ceiling      {parallel_ceiling(threads):.2f}x from 1 to {threads} threads "
+            "(a perfectly parallel compute loop)"
+        )
 
 
 if __name__ == "__main__":

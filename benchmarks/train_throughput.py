@@ -28,8 +28,14 @@ def synthetic(grid: tuple[int, int, int], steps: int, seed: int):  # type: ignor
     velocity = rng.normal(0, 0.5, (steps, *grid, 3)).astype(np.float32)
     vb = np.tile(np.float32([1.0, 0, 0]), (steps, 1))
     mass = density.sum(axis=(1, 2, 3))[:, None] * 1e-4
-    return from_arrays(velocity, density, vb, mass * [1, 0.1, 0.5], mass * [0.2, -0.3, 0.05],
-                       point={"scenario": "hill", "speed": 1.0, "depth": 0.05 * (seed + 1)})
+    return from_arrays(
+        velocity,
+        density,
+        vb,
+        mass * [1, 0.1, 0.5],
+        mass * [0.2, -0.3, 0.05],
+        point={"scenario": "hill", "speed": 1.0, "depth": 0.05 * (seed + 1)},
+    )
 
 
 @torch.no_grad()
@@ -37,7 +43,10 @@ def latency(model: torch.nn.Module, store, device: torch.device, repeats: int = 
     """Seconds per single-step prediction (batch of 1, with the model's history)."""
     model = model.to(device).eval()
     h = model.history  # one prediction: the current step and its history
-    args = [torch.from_numpy(a[None, :h]).to(device) for a in (store.velocity, store.density, store.blade_velocity)]
+    args = [
+        torch.from_numpy(a[None, :h]).to(device)
+        for a in (store.velocity, store.density, store.blade_velocity)
+    ]
     model(*args)
     if device.type == "cuda":
         torch.cuda.synchronize()
@@ -62,8 +71,10 @@ def main() -> None:
     stores = [synthetic(tuple(args.grid), args.steps, k) for k in range(args.stores)]
     config = load_config({"learn": {"epochs": args.epochs, "patience": args.epochs}})
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    print(f"grid {tuple(args.grid)}, {args.stores}×{args.steps} steps, {args.epochs} epochs, {args.threads} threads, "
-          f"history {config['learn']['history']}")
+    print(
+        f"grid {tuple(args.grid)}, {args.stores}×{args.steps} steps, {args.epochs} epochs, {args.threads} threads, "
+        f"history {config['learn']['history']}"
+    )
     print(f"{'model':8s} {'device':6s} {'samples/s':>10s} {'data wait':>10s} {'latency/step':>13s}")
     for device in devices:
         for kind in args.models:
@@ -72,7 +83,10 @@ def main() -> None:
             rate = r.samples["train"] * epochs / r.seconds
             wait = r.data_seconds / r.seconds if kind != "linear" else 0.0
             lat = latency(r.model, stores[0], torch.device(device))
-            print(f"{kind:8s} {device:6s} {rate:10.0f} {100 * wait:9.1f}% {1e3 * lat:10.2f} ms", flush=True)
+            print(
+                f"{kind:8s} {device:6s} {rate:10.0f} {100 * wait:9.1f}% {1e3 * lat:10.2f} ms",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

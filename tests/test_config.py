@@ -21,14 +21,17 @@ def test_inline_json_and_file(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "doc, field, allowed",
+    ("doc", "field", "allowed"),
     [
         ({"solver": {"dt": 0}}, "solver.dt", "> 0"),
         ({"solver": {"iterations": 0}}, "solver.iterations", ">= 1"),
         ({"material": {"poisson_ratio": 0.7}}, "material.poisson_ratio", "<= 0.5"),
         ({"sweep": {"scenarios": ["dune"]}}, "sweep.scenarios.0", "one of"),
-        ({"sweep": {"interpolation": [{"scenario": "hill", "speed": -1, "depth": 0.1}]}},
-         "sweep.interpolation.0.speed", "> 0"),
+        (
+            {"sweep": {"interpolation": [{"scenario": "hill", "speed": -1, "depth": 0.1}]}},
+            "sweep.interpolation.0.speed",
+            "> 0",
+        ),
         ({"blade": {"colour": "red"}}, "blade", "only the fields"),
     ],
 )

@@ -22,8 +22,17 @@ with tracked_run("job" + sys.argv[2], rule="test"):
 def test_jobs_started_together_on_a_fresh_store_all_record(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "DOZERLAB_"))}
     start = time.time() + 5.0  # past every interpreter's start-up, so they reach the store at once
-    procs = [subprocess.Popen([sys.executable, "-c", JOB, str(start), str(i)], cwd=tmp_path, env=env,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(4)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", JOB, str(start), str(i)],
+            cwd=tmp_path,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(4)
+    ]
     outputs = [p.communicate(timeout=120)[0] for p in procs]
     assert [p.returncode for p in procs] == [0] * 4, "\n".join(outputs)
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from dozerlab import sweep as P
 from dozerlab.config import load_config
-from dozerlab.report import points as P
 from dozerlab.tracking import PARENT_ENV
 
 pytestmark = pytest.mark.slow
@@ -32,8 +32,20 @@ MODELS = CFG["learn"]["models"]
 
 
 def snakemake_cmd(workdir: Path, *args: str, configfile: Path = QUICK) -> list[str]:
-    return [sys.executable, "-m", "snakemake", *args, "--cores", "2", "-s", str(REPO / "Snakefile"),
-            "--directory", str(workdir), "--configfile", str(configfile)]
+    return [
+        sys.executable,
+        "-m",
+        "snakemake",
+        *args,
+        "--cores",
+        "2",
+        "-s",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(configfile),
+    ]
 
 
 def clean_env() -> dict[str, str]:
@@ -43,8 +55,13 @@ def clean_env() -> dict[str, str]:
 
 
 def snakemake(workdir: Path, *args: str, configfile: Path = QUICK) -> subprocess.CompletedProcess:
-    return subprocess.run(snakemake_cmd(workdir, *args, configfile=configfile), env=clean_env(),
-                          capture_output=True, text=True, timeout=900)
+    return subprocess.run(
+        snakemake_cmd(workdir, *args, configfile=configfile),
+        env=clean_env(),
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
 
 
 def runs(workdir: Path):
@@ -69,7 +86,11 @@ def test_stores_open_and_nothing_half_written_is_left(quick):
         ds = xr.open_zarr(P.field_path(quick / "results", point))
         assert ds["velocity"].dims == ("time", "x", "y", "z", "component")
         assert ds.sizes["time"] > 0 and np.isfinite(ds["force"].values).all()
-        assert (ds.attrs["scenario"], ds.attrs["speed"], ds.attrs["depth"]) == (point.scenario, point.speed, point.depth)
+        assert (ds.attrs["scenario"], ds.attrs["speed"], ds.attrs["depth"]) == (
+            point.scenario,
+            point.speed,
+            point.depth,
+        )
     assert not list((quick / "results").rglob("*.tmp-*"))
 
 
@@ -99,8 +120,11 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert len(all_runs) == 1 + len(children)
     for child in children:
         assert child.info.status == "FINISHED" and child.data.metrics, child.data.tags["rule"]
-    sims = {(r.data.tags["scenario"], float(r.data.tags["speed"]), float(r.data.tags["depth"]))
-            for r in children if r.data.tags["rule"] == "simulate"}
+    sims = {
+        (r.data.tags["scenario"], float(r.data.tags["speed"]), float(r.data.tags["depth"]))
+        for r in children
+        if r.data.tags["rule"] == "simulate"
+    }
     assert sims == {(p.scenario, p.speed, p.depth) for p in POINTS}
 
 
@@ -134,14 +158,24 @@ def test_killed_simulation_is_redone_cleanly(quick):
     point = P.SweepPoint("hill", 1.1, 0.06)
     store = P.field_path(quick / "results", point)
     target = str(store.relative_to(quick))  # targets are paths relative to the working directory
-    proc = subprocess.Popen(snakemake_cmd(quick, target), env=clean_env(), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        snakemake_cmd(quick, target),
+        env=clean_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 300
         while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
-            assert proc.poll() is None and time.monotonic() < deadline, "the simulation never started"
+            assert proc.poll() is None and time.monotonic() < deadline, (
+                "the simulation never started"
+            )
             time.sleep(0.05)
-        os.kill(int(partial[0].name.rsplit("-", 1)[1]), signal.SIGKILL)  # the simulate process, mid-run
+        os.kill(
+            int(partial[0].name.rsplit("-", 1)[1]), signal.SIGKILL
+        )  # the simulate process, mid-run
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -149,8 +183,10 @@ def test_killed_simulation_is_redone_cleanly(quick):
             proc.wait()
     assert proc.returncode != 0, err[-3000:]
     assert not store.exists()
-    client, all_runs = runs(quick)
-    failed = [r for r in all_runs if r.data.tags.get("rule") == "workflow" and r.info.status == "FAILED"]
+    _client, all_runs = runs(quick)
+    failed = [
+        r for r in all_runs if r.data.tags.get("rule") == "workflow" and r.info.status == "FAILED"
+    ]
     assert len(failed) == 1
 
     done = snakemake(quick, target)

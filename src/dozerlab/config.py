@@ -52,7 +52,8 @@ def check_geometry(config: Mapping[str, Any]) -> None:
             f"and side wall is {gap / diameter:.2g} grain diameters; grains wedge in it and drag on the "
             f"walls, a force the fields in front of the blade do not see (make it < {smallest:.3g} m, "
             f"the smallest grain, or >= {FREE_GAP_DIAMETERS * diameter:.3g} m)",
-            ConfigWarning, stacklevel=3,
+            ConfigWarning,
+            stacklevel=3,
         )
 
 

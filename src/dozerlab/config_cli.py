@@ -7,7 +7,9 @@ import argparse
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("config", help="validate a config file and print it complete")
-    p.add_argument("config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)")
+    p.add_argument(
+        "config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
     p.set_defaults(func=_run)
 
 

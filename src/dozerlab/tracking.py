@@ -34,7 +34,7 @@ def _store_lock(uri: str) -> Iterator[None]:
     if not uri.startswith(prefix):
         yield
         return
-    with open(uri[len(prefix):] + ".lock", "a") as lock:
+    with open(uri[len(prefix) :] + ".lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
             yield
@@ -87,7 +87,9 @@ def tracked_run(
     configure(experiment)
     parent = os.environ.get(PARENT_ENV) or None
     all_tags = {"rule": rule, **{k: str(v) for k, v in (tags or {}).items()}}
-    with mlflow.start_run(run_name=name, parent_run_id=parent, nested=parent is not None, tags=all_tags) as run:
+    with mlflow.start_run(
+        run_name=name, parent_run_id=parent, nested=parent is not None, tags=all_tags
+    ) as run:
         if params:
             mlflow.log_params(flatten(params))
         yield run

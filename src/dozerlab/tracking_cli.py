@@ -51,7 +51,9 @@ def start_parent_run(
     return run.info.run_id
 
 
-def end_parent_run(run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()) -> list[Path]:
+def end_parent_run(
+    run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()
+) -> list[Path]:
     """End the parent run with ``status``, logging each of ``artifacts`` written since it began.
 
     Paths that do not exist, or that are older than the run (a report this invocation did not
@@ -75,18 +77,33 @@ def end_parent_run(run_id: str, status: str = "FINISHED", artifacts: Sequence[st
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("mlflow-start", help="start the parent MLflow run of a workflow; print its id")
-    p.add_argument("--experiment", default=None, help="experiment name (default: the config's mlflow.experiment)")
+    p = sub.add_parser(
+        "mlflow-start", help="start the parent MLflow run of a workflow; print its id"
+    )
+    p.add_argument(
+        "--experiment",
+        default=None,
+        help="experiment name (default: the config's mlflow.experiment)",
+    )
     p.add_argument("--name", default="workflow", help="run name")
-    p.add_argument("--config", default=None, help="YAML file or inline JSON, logged as the run's params")
-    p.add_argument("--tag", action="append", default=[], metavar="KEY=VALUE", help="a tag (repeatable)")
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON, logged as the run's params"
+    )
+    p.add_argument(
+        "--tag", action="append", default=[], metavar="KEY=VALUE", help="a tag (repeatable)"
+    )
     p.set_defaults(func=_start)
 
-    p = sub.add_parser("mlflow-end", help="end a parent MLflow run, logging the artifacts it produced")
+    p = sub.add_parser(
+        "mlflow-end", help="end a parent MLflow run, logging the artifacts it produced"
+    )
     p.add_argument("run_id", help="the id mlflow-start printed")
     p.add_argument("--status", default="FINISHED", choices=STATUSES)
     p.add_argument(
-        "--artifact", action="append", default=[], metavar="PATH",
+        "--artifact",
+        action="append",
+        default=[],
+        metavar="PATH",
         help="a file to log if this invocation wrote it (repeatable)",
     )
     p.set_defaults(func=_end)

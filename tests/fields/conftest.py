@@ -20,10 +20,15 @@ def store_arrays() -> dict:
     t, grid = 70, (4, 3, 2)
     vec = lambda: rng.normal(size=(t, 3)).astype(np.float32)  # noqa: E731
     return {
-        "x": np.linspace(0.05, 0.35, 4), "y": np.linspace(-0.2, 0.2, 3), "z": np.array([-0.05, 0.05]),
+        "x": np.linspace(0.05, 0.35, 4),
+        "y": np.linspace(-0.2, 0.2, 3),
+        "z": np.array([-0.05, 0.05]),
         "time": np.arange(t) * 0.01,
         "velocity": rng.normal(size=(t, *grid, 3)).astype(np.float32),
         "density": rng.uniform(0, 2600, size=(t, *grid)).astype(np.float32),
-        "force": vec(), "torque": vec(), "blade_velocity": vec(), "blade_position": vec(),
-        "attrs": {a: None for a in ATTRS} | {"scenario": "hill", "bins": [4, 3, 2]},
+        "force": vec(),
+        "torque": vec(),
+        "blade_velocity": vec(),
+        "blade_position": vec(),
+        "attrs": dict.fromkeys(ATTRS) | {"scenario": "hill", "bins": [4, 3, 2]},
     }

@@ -37,7 +37,9 @@ def test_export_import_round_trip_is_identical(tmp_path, legacy_file, store_arra
     np.testing.assert_array_equal(ds["time"].values, store_arrays["time"].astype(np.float32))
     # blade position integrated from the velocity, from zero
     v, t = store_arrays["blade_velocity"], ds["time"].values
-    np.testing.assert_allclose(ds["blade_position"].values[2], v[0] * (t[1] - t[0]) + v[1] * (t[2] - t[1]), rtol=1e-5)
+    np.testing.assert_allclose(
+        ds["blade_position"].values[2], v[0] * (t[1] - t[0]) + v[1] * (t[2] - t[1]), rtol=1e-5
+    )
     assert ds.attrs["bins"] == [4, 3, 2]
     # and back again, byte for byte
     again = export_legacy(tmp_path / "back.zarr", tmp_path / "again.bin")
@@ -48,7 +50,9 @@ def test_truncated_file_is_refused_and_leaves_no_store(tmp_path, legacy_file):
     cut = tmp_path / "cut.bin"
     record = 4 * (10 + 4 * 24)
     cut.write_bytes(legacy_file.read_bytes()[: HEADER_BYTES + 3 * record + 17])
-    with pytest.raises(ValueError, match=rf"truncated at step 3: .* byte offset {HEADER_BYTES + 3 * record}"):
+    with pytest.raises(
+        ValueError, match=rf"truncated at step 3: .* byte offset {HEADER_BYTES + 3 * record}"
+    ):
         import_legacy(cut, tmp_path / "cut.zarr")
     assert not (tmp_path / "cut.zarr").exists()
     (tmp_path / "head.bin").write_bytes(b"\x01\x00")
@@ -63,7 +67,9 @@ def test_inconsistent_file_is_refused(tmp_path, legacy_file):
     with pytest.raises(ValueError, match="bin counts"):
         import_legacy(bad_header, tmp_path / "x.zarr")
     record = 4 * (10 + 4 * 24)
-    raw[HEADER_BYTES + 10 * record: HEADER_BYTES + 10 * record + 4] = np.array([-1.0], "<f4").tobytes()
+    raw[HEADER_BYTES + 10 * record : HEADER_BYTES + 10 * record + 4] = np.array(
+        [-1.0], "<f4"
+    ).tobytes()
     bad_time = tmp_path / "time.bin"
     bad_time.write_bytes(bytes(raw))
     with pytest.raises(ValueError, match=f"step 10 \\(byte offset {HEADER_BYTES + 10 * record}\\)"):

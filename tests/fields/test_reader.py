@@ -9,14 +9,26 @@ import zarr
 from dozerlab.fields.reader import read_field
 from dozerlab.fields.store import write_store
 
-WINDOWS = [(0, None), (0, 1), (3, 21), (8, 16), (60, 70), (63, 66), (69, None), (-5, None), (40, 30)]
+WINDOWS = [
+    (0, None),
+    (0, 1),
+    (3, 21),
+    (8, 16),
+    (60, 70),
+    (63, 66),
+    (69, None),
+    (-5, None),
+    (40, 30),
+]
 
 
 @pytest.mark.parametrize("codec", ["default", "none"])
 @pytest.mark.parametrize("threads", [1, 2])
 def test_read_field_equals_zarr(tmp_path, store_arrays, codec, threads):
     options = {} if codec == "default" else {"codec": ()}
-    path = write_store(tmp_path / "f.zarr", chunk_steps=16, inner_steps=4, **options, **store_arrays)
+    path = write_store(
+        tmp_path / "f.zarr", chunk_steps=16, inner_steps=4, **options, **store_arrays
+    )
     for name in ("velocity", "density", "force", "time"):
         arr = zarr.open_array(path / name, mode="r")
         for start, stop in WINDOWS:
@@ -28,8 +40,14 @@ def test_read_field_equals_zarr(tmp_path, store_arrays, codec, threads):
 
 
 def test_unwritten_inner_chunks_read_as_fill(tmp_path):
-    arr = zarr.create_array(tmp_path / "a", shape=(20, 2, 3), shards=(8, 2, 3), chunks=(4, 2, 3),
-                            dtype="f4", fill_value=0.0)
+    arr = zarr.create_array(
+        tmp_path / "a",
+        shape=(20, 2, 3),
+        shards=(8, 2, 3),
+        chunks=(4, 2, 3),
+        dtype="f4",
+        fill_value=0.0,
+    )
     arr[9:11] = 5.0  # touches inner chunks 2 and 3 only; the rest of the shards stay unwritten
     np.testing.assert_array_equal(read_field(tmp_path, "a"), arr[:])
     np.testing.assert_array_equal(read_field(tmp_path, "a", 2, 14), arr[2:14])

@@ -16,7 +16,14 @@ CONFIG = {
     "scenarios": {"hill": {"goal_height": 0.08}},
     "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
     "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
-    "sampling": {"length": 0.3, "below_edge": 0.05, "bins": [6, 5, 4], "every": 2, "chunk_steps": 8, "vtk_every": 10},
+    "sampling": {
+        "length": 0.3,
+        "below_edge": 0.05,
+        "bins": [6, 5, 4],
+        "every": 2,
+        "chunk_steps": 8,
+        "vtk_every": 10,
+    },
 }
 
 
@@ -31,9 +38,18 @@ def _lattice_bed(config: dict):
     pos = np.array(np.meshgrid(xs, ys, zs, indexing="ij")).reshape(3, -1).T
     radii = np.full(len(pos), r)
     zeros = np.zeros_like(pos)
-    return Bed(scenario="hill", length=0.8, width=0.36, positions=pos, radii=radii,
-               masses=config["material"]["density"] * 4 / 3 * np.pi * radii**3, velocities=zeros,
-               angular_velocities=zeros, material=dict(config["material"]), seed=1)
+    return Bed(
+        scenario="hill",
+        length=0.8,
+        width=0.36,
+        positions=pos,
+        radii=radii,
+        masses=config["material"]["density"] * 4 / 3 * np.pi * radii**3,
+        velocities=zeros,
+        angular_velocities=zeros,
+        material=dict(config["material"]),
+        seed=1,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -54,9 +70,23 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
 
     tmp, bed, traj = inputs
     out = tmp / "f.zarr"
-    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(tmp / "speed~0.5_depth~0.06.csv"),
-            "--config", json.dumps(CONFIG), "--out", str(out), "--threads", "1", "--vtk-dir", str(tmp / "vtk"),
-            "--plots", str(tmp / "plots")]
+    argv = [
+        "simulate",
+        "--bed",
+        str(tmp / "bed.npz"),
+        "--trajectory",
+        str(tmp / "speed~0.5_depth~0.06.csv"),
+        "--config",
+        json.dumps(CONFIG),
+        "--out",
+        str(out),
+        "--threads",
+        "1",
+        "--vtk-dir",
+        str(tmp / "vtk"),
+        "--plots",
+        str(tmp / "plots"),
+    ]
     assert main(argv) == 0
     ds = open_store(out)
     assert ds.sizes["time"] == traj.steps // 2
@@ -65,29 +95,43 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
     assert ds.attrs["particle_count"] == bed.count and ds.attrs["sample_every"] == 2
     assert json.loads(ds.attrs["config"])["sampling"]["bins"] == [6, 5, 4]
     np.testing.assert_allclose(ds["time"].values, traj.time[2::2][: ds.sizes["time"]])
-    np.testing.assert_allclose(ds["blade_position"].values, traj.position[2::2][: ds.sizes["time"]], atol=1e-6)
+    np.testing.assert_allclose(
+        ds["blade_position"].values, traj.position[2::2][: ds.sizes["time"]], atol=1e-6
+    )
     force = ds["force"].values
     assert np.isfinite(force).all() and np.abs(force).max() > 0  # the blade met the bed
     rho = ds["density"].values
     assert rho.max() > 0 and np.isfinite(ds["velocity"].values).all()
     # the blade pushes material: its mean force on the blade points backwards (−x) once it cuts
-    assert force[len(force) // 2:, 0].mean() < 0
+    assert force[len(force) // 2 :, 0].mean() < 0
     assert len(list((tmp / "vtk").glob("particles_*.vtu"))) == traj.steps // 10
     assert {"force.png", "slice_000000.png"} <= {p.name for p in (tmp / "plots").iterdir()}
 
 
-@pytest.mark.parametrize(("section", "message"), [
-    ({"dt": 0.02}, "differs from solver.dt"),
-    ({"max_overlap": 1e-4}, "simulation diverged at step"),
-])
+@pytest.mark.parametrize(
+    ("section", "message"),
+    [
+        ({"dt": 0.02}, "differs from solver.dt"),
+        ({"max_overlap": 1e-4}, "simulation diverged at step"),
+    ],
+)
 def test_bad_runs_are_refused_without_store(inputs, capsys, section, message):
     import json
 
     tmp, _, _ = inputs
     cfg = json.loads(json.dumps(CONFIG))
     cfg["solver"].update(section)
-    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(tmp / "speed~0.5_depth~0.06.csv"),
-            "--config", json.dumps(cfg), "--out", str(tmp / "g.zarr")]
+    argv = [
+        "simulate",
+        "--bed",
+        str(tmp / "bed.npz"),
+        "--trajectory",
+        str(tmp / "speed~0.5_depth~0.06.csv"),
+        "--config",
+        json.dumps(cfg),
+        "--out",
+        str(tmp / "g.zarr"),
+    ]
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp / "g.zarr").exists()

@@ -54,10 +54,14 @@ def test_density_conserves_mass_inside_volume():
     lo = tip + grid.lower
     pos, radii, masses = _bed(3000, rng, lo + r, lo + extent - r, r)  # wholly inside
     _, rho = grid.sample(pos, np.zeros_like(pos), radii, masses, tip)
-    assert float(rho.sum(dtype=np.float64)) * grid.bin_volume == pytest.approx(masses.sum(), rel=1e-5)
+    assert float(rho.sum(dtype=np.float64)) * grid.bin_volume == pytest.approx(
+        masses.sum(), rel=1e-5
+    )
     # particles wholly outside add nothing
     out, r_out, m_out = _bed(500, rng, lo + extent + r, lo + extent + 1.0, r)
-    _, rho2 = grid.sample(np.vstack([pos, out]), np.zeros((3500, 3)), np.r_[radii, r_out], np.r_[masses, m_out], tip)
+    _, rho2 = grid.sample(
+        np.vstack([pos, out]), np.zeros((3500, 3)), np.r_[radii, r_out], np.r_[masses, m_out], tip
+    )
     np.testing.assert_array_equal(rho2, rho)
 
 
@@ -66,7 +70,9 @@ def test_uniform_velocity_is_recovered_in_every_occupied_bin():
     tip = np.zeros(3)
     rng = np.random.default_rng(2)
     lo = tip + grid.lower
-    pos, radii, masses = _bed(800, rng, lo - 0.1, lo + np.array(grid.bins) * grid.bin_size + 0.1, 0.05)
+    pos, radii, masses = _bed(
+        800, rng, lo - 0.1, lo + np.array(grid.bins) * grid.bin_size + 0.1, 0.05
+    )
     v = np.array([0.9, -0.2, 0.05])
     vel, rho = grid.sample(pos, np.tile(v, (len(pos), 1)), radii, masses, tip)
     occupied = rho > 0
@@ -76,7 +82,13 @@ def test_uniform_velocity_is_recovered_in_every_occupied_bin():
 
 
 def test_config_grid_spans_blade_and_below_edge():
-    cfg = load_config({"blade": {"width": 1.0, "height": 0.5}, "sampling": {"length": 1.2, "below_edge": 0.1, "bins": [24, 20, 12]}})
+    cfg = load_config(
+        {
+            "bed": {"width": 1.6},
+            "blade": {"width": 1.0, "height": 0.5},
+            "sampling": {"length": 1.2, "below_edge": 0.1, "bins": [24, 20, 12]},
+        }
+    )
     grid = SamplingGrid.from_config(cfg)
     x, y, z = grid.centres()
     assert (x[0], x[-1]) == pytest.approx((0.025, 1.175))

@@ -27,10 +27,19 @@ def test_store_round_trip_opens_in_xarray_with_documented_names(tmp_path, store_
 
 def test_writer_buffers_one_chunk(tmp_path, store_arrays):
     a = store_arrays
-    with FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs=a["attrs"], chunk_steps=8) as w:
+    with FieldStoreWriter(
+        tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs=a["attrs"], chunk_steps=8
+    ) as w:
         for i in range(10):
-            w.append(a["time"][i], a["velocity"][i], a["density"][i], a["force"][i], a["torque"][i],
-                     a["blade_velocity"][i], a["blade_position"][i])
+            w.append(
+                a["time"][i],
+                a["velocity"][i],
+                a["density"][i],
+                a["force"][i],
+                a["torque"][i],
+                a["blade_velocity"][i],
+                a["blade_position"][i],
+            )
         assert w.steps == 8  # the first chunk was written, the rest is buffered
         assert not (tmp_path / "f.zarr").exists()  # only the temporary exists until close
     arr = zarr.open_array(tmp_path / "f.zarr" / "velocity", mode="r")
@@ -39,18 +48,25 @@ def test_writer_buffers_one_chunk(tmp_path, store_arrays):
 
 def test_failed_write_leaves_nothing(tmp_path, store_arrays):
     a = store_arrays
-    with pytest.raises(RuntimeError, match="boom"):
-        with FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={}) as w:
+    writer = FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={})
+
+    def write_then_fail() -> None:
+        with writer as w:
             w.append(0.0, a["velocity"][0], a["density"][0], *(np.zeros(3),) * 4)
             raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        write_then_fail()
     assert list(tmp_path.iterdir()) == []
 
 
 def test_append_rejects_wrong_shape(tmp_path, store_arrays):
     a = store_arrays
-    with pytest.raises(ValueError, match=r"density must have shape \(4, 3, 2\)"):
-        with FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={}) as w:
-            w.append(0.0, a["velocity"][0], np.zeros((4, 3)), *(np.zeros(3),) * 4)
+    with (
+        pytest.raises(ValueError, match=r"density must have shape \(4, 3, 2\)"),
+        FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={}) as w,
+    ):
+        w.append(0.0, a["velocity"][0], np.zeros((4, 3)), *(np.zeros(3),) * 4)
     assert not (tmp_path / "f.zarr").exists()
 
 
@@ -63,5 +79,5 @@ def test_open_store_names_what_is_missing(tmp_path, store_arrays):
         open_store(path)
     ds = xr.open_zarr(path).drop_vars("torque").rename({"force": "blade_force"})
     ds.to_zarr(tmp_path / "g.zarr", zarr_format=3, consolidated=True)
-    with pytest.raises(ValueError, match="missing variable 'force'.*missing variable 'torque'"):
+    with pytest.raises(ValueError, match=r"missing variable 'force'.*missing variable 'torque'"):
         open_store(tmp_path / "g.zarr")

@@ -22,7 +22,10 @@ def test_split_is_a_trailing_block_per_store_and_history_stays_in_store():
         assert t.max() < v.min() and v.size == round(0.25 * (steps - 3))
     rows = samples.rows(np.arange(len(samples)))
     starts = np.array([0, 40])
-    assert all(((r >= starts[s]) & (r < starts[s] + (40, 60)[s])).all() for r, s in zip(rows, samples.store_of))
+    assert all(
+        ((r >= starts[s]) & (r < starts[s] + (40, 60)[s])).all()
+        for r, s in zip(rows, samples.store_of, strict=False)
+    )
 
 
 def test_spread_blocks_cover_the_run_and_no_training_input_touches_them():
@@ -35,7 +38,9 @@ def test_spread_blocks_cover_the_run_and_no_training_input_touches_them():
     assert train_rows.isdisjoint(val.index)
     assert set(train.index).isdisjoint(val.index)
     # a store shorter than four blocks keeps the trailing block
-    short_train, short_val = split_train_validation(concat([in_memory(0.5, 0.05, steps=30, seed=1)], 3), 0.25, block=10)
+    short_train, short_val = split_train_validation(
+        concat([in_memory(0.5, 0.05, steps=30, seed=1)], 3), 0.25, block=10
+    )
     assert short_train.index.max() < short_val.index.min() and short_val.index.max() == 29
 
 

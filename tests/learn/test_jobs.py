@@ -24,7 +24,11 @@ def tracking(tmp_path_factory):
 
 
 def _inputs(store):
-    return {"velocity": store.velocity, "density": store.density, "blade_velocity": store.blade_velocity}
+    return {
+        "velocity": store.velocity,
+        "density": store.density,
+        "blade_velocity": store.blade_velocity,
+    }
 
 
 def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_files, config):
@@ -36,7 +40,14 @@ def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_fi
     expected = pyfunc.predict_arrays(result.model, held_out)
     for uri in (result.model_uri, str(out)):
         got = mlflow.pyfunc.load_model(uri).predict(held_out)
-        assert list(got.columns) == ["force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z"]
+        assert list(got.columns) == [
+            "force_x",
+            "force_y",
+            "force_z",
+            "torque_x",
+            "torque_y",
+            "torque_z",
+        ]
         np.testing.assert_allclose(got.to_numpy(), expected, rtol=1e-5, atol=1e-4)
     runs = mlflow.search_runs(experiment_names=["dozerlab"], filter_string="tags.model = 'cnn'")
     assert list(runs["tags.rule"]) == ["train"]
@@ -47,10 +58,36 @@ def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_fi
 def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     files = [str(p) for p in store_files["train"]]
     out = tracking / "models" / "linear"
-    assert main(["train", "--model", "linear", "--train", *files, "--config", "{}", "--out", str(out), "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--model",
+                "linear",
+                "--train",
+                *files,
+                "--config",
+                "{}",
+                "--out",
+                str(out),
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     report = tracking / "validation" / "linear.json"
-    argv = ["validate", "--model", str(out), "--interpolation", str(store_files["interpolation"][0]),
-            "--extrapolation", str(store_files["extrapolation"][0]), "--out", str(report)]
+    argv = [
+        "validate",
+        "--model",
+        str(out),
+        "--interpolation",
+        str(store_files["interpolation"][0]),
+        "--extrapolation",
+        str(store_files["extrapolation"][0]),
+        "--out",
+        str(report),
+    ]
     assert main(argv) == 0
     result = json.loads(report.read_text())
     assert set(result["groups"]) == {"interpolation", "extrapolation"}
@@ -78,6 +115,10 @@ def test_loading_the_pyfunc_module_does_not_ask_for_type_hints():
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-c", "import dozerlab.learn.pyfunc_entry"],
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", "import dozerlab.learn.pyfunc_entry"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert "Add type hints" not in out.stderr

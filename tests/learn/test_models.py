@@ -27,7 +27,9 @@ def test_untrained_model_is_far_off(train_stores):
     # The tolerance above is meaningful: an unfitted model with identity normalisation misses.
     model = ForceModel("mlp", train_stores[0].grid).eval()
     s = train_stores[0]
-    pred = predict_arrays(model, {"velocity": s.velocity, "density": s.density, "blade_velocity": s.blade_velocity})
+    pred = predict_arrays(
+        model, {"velocity": s.velocity, "density": s.density, "blade_velocity": s.blade_velocity}
+    )
     assert component_metrics(pred, s.target)["force_x"]["rel_rmse"] > 0.5
 
 
@@ -59,8 +61,12 @@ def test_linear_model_is_mirror_equivariant(train_stores, config):
     model = train_model("linear", train_stores, config, progress=False).model
     s = train_stores[0]
     rows = np.arange(1, 21)[:, None] + np.arange(-1, 1)[None, :]
-    v, rho, vb = (torch.from_numpy(a[rows]).clone() for a in (s.velocity, s.density, s.blade_velocity))
-    rho = rho * torch.linspace(0.5, 1.5, rho.shape[3])[:, None]  # a lopsided pile: odd features are not zero
+    v, rho, vb = (
+        torch.from_numpy(a[rows]).clone() for a in (s.velocity, s.density, s.blade_velocity)
+    )
+    rho = (
+        rho * torch.linspace(0.5, 1.5, rho.shape[3])[:, None]
+    )  # a lopsided pile: odd features are not zero
     y = torch.zeros(v.shape[0], 6)
     with torch.no_grad():
         pred = model(v, rho, vb)
@@ -68,4 +74,6 @@ def test_linear_model_is_mirror_equivariant(train_stores, config):
         mirrored = model(v, rho, vb)
     assert pred[:, 1].abs().max() > 0  # the odd targets see the imbalance
     parity = torch.tensor([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
-    torch.testing.assert_close(mirrored, pred * parity, rtol=1e-4, atol=1e-3 * float(pred.abs().max()))
+    torch.testing.assert_close(
+        mirrored, pred * parity, rtol=1e-4, atol=1e-3 * float(pred.abs().max())
+    )

@@ -7,11 +7,15 @@ import torch
 from dozerlab.learn.train import mirror_y
 
 
-def _force_and_torque(velocity: torch.Tensor, density: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+def _force_and_torque(
+    velocity: torch.Tensor, density: torch.Tensor, y: torch.Tensor
+) -> torch.Tensor:
     """A physical stand-in for the blade load: total momentum and its moment about the tip,
     of bins at x = i, y = y[j], z = k. velocity (B, H, X, Y, Z, 3), density (B, H, X, Y, Z)."""
-    nx, ny, nz = density.shape[2:]
-    pos = torch.stack(torch.meshgrid(torch.arange(nx) * 1.0, y, torch.arange(nz) * 1.0, indexing="ij"), dim=-1)
+    nx, _ny, nz = density.shape[2:]
+    pos = torch.stack(
+        torch.meshgrid(torch.arange(nx) * 1.0, y, torch.arange(nz) * 1.0, indexing="ij"), dim=-1
+    )
     mom = density[:, -1, ..., None] * velocity[:, -1]
     force = mom.sum(dim=(1, 2, 3))
     torque = torch.linalg.cross(pos.expand_as(mom), mom, dim=-1).sum(dim=(1, 2, 3))

@@ -73,8 +73,7 @@ def test_sliding_box_like_sphere_decelerates_by_coulomb_friction():
     """A spinning-free sphere thrown along flat ground with μ_r large: pure sliding first."""
     w = World(iterations=100)
     w.add_plane(friction=0.2)
-    w.add_spheres([[0.0, 0.0, R]], radius=R, rolling_resistance=0.0,
-                  velocities=[[2.0, 0.0, 0.0]])
+    w.add_spheres([[0.0, 0.0, R]], radius=R, rolling_resistance=0.0, velocities=[[2.0, 0.0, 0.0]])
     w.step(5)
     v1 = w.velocities[0, 0]
     w.step(5)
@@ -96,15 +95,19 @@ def test_stack_and_pyramid_stay_stacked():
     assert np.abs(w.positions[5:, 2] - start[5:, 2]).max() < 0.01 * R
     weight = w.masses[0] * G
     sink = _hertz_overlap(5 * weight, 1.0e8, 0.3, R) + sum(
-        _hertz_overlap(k * weight, 1.0e8, 0.3, R / 2) for k in range(1, 5))
+        _hertz_overlap(k * weight, 1.0e8, 0.3, R / 2) for k in range(1, 5)
+    )
     assert start[4, 2] - w.positions[4, 2] == pytest.approx(sink, rel=0.05)
     assert np.abs(w.velocities).max() < 1e-3
 
 
 def test_collision_conserves_momentum_and_loses_energy():
     w = World(gravity=(0.0, 0.0, 0.0))
-    w.add_spheres([[0.0, 0.0, 0.0], [0.3, 0.02, 0.0]], radius=[0.05, 0.07],
-                  velocities=[[1.0, 0.0, 0.0], [-0.5, 0.0, 0.0]])
+    w.add_spheres(
+        [[0.0, 0.0, 0.0], [0.3, 0.02, 0.0]],
+        radius=[0.05, 0.07],
+        velocities=[[1.0, 0.0, 0.0], [-0.5, 0.0, 0.0]],
+    )
     m = w.masses
     inertia = 0.4 * m * w.radii**2
 
@@ -200,8 +203,9 @@ def test_emitted_bed_settles_with_the_workflow_defaults():
     layer = grid * 0.115 + [0.08, -0.23]
     for batch in range(6):
         pos = np.column_stack([layer, np.full(len(layer), 0.15 + 0.12 * batch)])
-        w.add_spheres(pos + rng.uniform(-0.003, 0.003, pos.shape),
-                      radius=R * rng.uniform(0.9, 1.1, len(pos)))
+        w.add_spheres(
+            pos + rng.uniform(-0.003, 0.003, pos.shape), radius=R * rng.uniform(0.9, 1.1, len(pos))
+        )
         w.step(30)
     w.step(150)
     kinetic = 0.5 * (w.masses * (w.velocities**2).sum(1)).sum() / w.n_spheres

@@ -105,20 +105,36 @@ def test_save_and_load_round_trip(tmp_path):
 
 
 def test_from_config_reads_solver_and_material():
-    cfg = load_config({"solver": {"dt": 0.005, "iterations": 30, "damping_steps": 2.0},
-                       "material": {"youngs_modulus": 0.0, "friction": 0.7}})
+    cfg = load_config(
+        {
+            "solver": {"dt": 0.005, "iterations": 30, "damping_steps": 2.0},
+            "material": {"youngs_modulus": 0.0, "friction": 0.7},
+        }
+    )
     w = World.from_config(cfg)
     assert (w.dt, w.iterations, w.damping_steps, w.youngs_modulus, w.friction) == (
-        0.005, 30, 2.0, 0.0, 0.7)
+        0.005,
+        30,
+        2.0,
+        0.0,
+        0.7,
+    )
     assert w.max_overlap == cfg["solver"]["max_overlap"]
     assert w.density == cfg["material"]["density"]
 
 
-@pytest.mark.parametrize(("kwargs", "match"), [
-    ({"dt": 0.0}, "dt"), ({"dt": -1.0}, "dt"), ({"iterations": 0}, "iterations"),
-    ({"damping_steps": 0.0}, "damping_steps"), ({"poisson_ratio": 0.5}, "poisson_ratio"),
-    ({"youngs_modulus": -1.0}, "youngs_modulus"), ({"gravity": (0, 0)}, "gravity"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"dt": 0.0}, "dt"),
+        ({"dt": -1.0}, "dt"),
+        ({"iterations": 0}, "iterations"),
+        ({"damping_steps": 0.0}, "damping_steps"),
+        ({"poisson_ratio": 0.5}, "poisson_ratio"),
+        ({"youngs_modulus": -1.0}, "youngs_modulus"),
+        ({"gravity": (0, 0)}, "gravity"),
+    ],
+)
 def test_invalid_world_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
         World(**kwargs)

@@ -19,8 +19,18 @@ def lattice_bed(scenario: str, profile, seed: int = 0) -> Bed:
     n = len(pos)
     radii = np.full(n, RADIUS)
     masses = 2600.0 * 4.0 / 3.0 * np.pi * radii**3
-    return Bed(scenario, LENGTH, WIDTH, pos, radii, masses, np.zeros((n, 3)), np.zeros((n, 3)),
-               {"density": 2600.0}, seed)
+    return Bed(
+        scenario,
+        LENGTH,
+        WIDTH,
+        pos,
+        radii,
+        masses,
+        np.zeros((n, 3)),
+        np.zeros((n, 3)),
+        {"density": 2600.0},
+        seed,
+    )
 
 
 @pytest.fixture(scope="session")
@@ -30,7 +40,9 @@ def config():
 
 @pytest.fixture(scope="session")
 def hill_bed():
-    return lattice_bed("hill", lambda x: 0.2 + 0.5 * np.cos(np.clip((x - 2.2) / 0.8, -1, 1) * np.pi / 2) ** 2)
+    return lattice_bed(
+        "hill", lambda x: 0.2 + 0.5 * np.cos(np.clip((x - 2.2) / 0.8, -1, 1) * np.pi / 2) ** 2
+    )
 
 
 @pytest.fixture(scope="session")

@@ -10,8 +10,12 @@ from dozerlab.scenarios.blade import BladeGeometry, centre_to_tip, tip_to_centre
 
 
 def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
-    bed = dataclasses.replace(hill_bed, settle_time=np.array([0.05, 0.1]),
-                              settle_kinetic_energy=np.array([1.0, 0.5]), settle_contacts=np.array([10, 12]))
+    bed = dataclasses.replace(
+        hill_bed,
+        settle_time=np.array([0.05, 0.1]),
+        settle_kinetic_energy=np.array([1.0, 0.5]),
+        settle_contacts=np.array([10, 12]),
+    )
     path = tmp_path / "hill.npz"
     bed.save(path)
     with np.load(path, allow_pickle=False) as data:
@@ -19,8 +23,16 @@ def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
         assert data["positions"].shape == (bed.count, 3)
     assert meta["scenario"] == "hill" and meta["material"]["density"] == 2600.0
     back = Bed.load(path)
-    for name in ("positions", "radii", "masses", "velocities", "angular_velocities",
-                 "settle_time", "settle_kinetic_energy", "settle_contacts"):
+    for name in (
+        "positions",
+        "radii",
+        "masses",
+        "velocities",
+        "angular_velocities",
+        "settle_time",
+        "settle_kinetic_energy",
+        "settle_contacts",
+    ):
         np.testing.assert_array_equal(getattr(back, name), getattr(bed, name))
     assert (back.scenario, back.length, back.width, back.seed) == ("hill", 4.0, 1.2, 0)
     assert not list(tmp_path.glob(".*tmp*"))
@@ -28,11 +40,31 @@ def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
 
 def test_bad_scenario_and_shapes_are_refused(hill_bed):
     with pytest.raises(ValueError, match="scenario must be one of"):
-        Bed("dune", 1.0, 1.0, np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros((0, 3)),
-            np.zeros((0, 3)), {}, 0)
+        Bed(
+            "dune",
+            1.0,
+            1.0,
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros((0, 3)),
+            np.zeros((0, 3)),
+            {},
+            0,
+        )
     with pytest.raises(ValueError, match="velocities"):
-        Bed("hill", 1.0, 1.0, np.zeros((2, 3)), np.ones(2), np.ones(2), np.zeros((3, 3)),
-            np.zeros((2, 3)), {}, 0)
+        Bed(
+            "hill",
+            1.0,
+            1.0,
+            np.zeros((2, 3)),
+            np.ones(2),
+            np.ones(2),
+            np.zeros((3, 3)),
+            np.zeros((2, 3)),
+            {},
+            0,
+        )
 
 
 def test_foreign_file_is_a_clear_error(tmp_path):
@@ -44,9 +76,21 @@ def test_foreign_file_is_a_clear_error(tmp_path):
 
 
 def test_kinetic_energy_counts_translation_and_rotation():
-    bed = Bed("step", 1.0, 1.0, np.zeros((1, 3)), np.array([0.1]), np.array([2.0]),
-              np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 10.0, 0.0]]), {}, 0)
-    assert bed.kinetic_energy_per_particle() == pytest.approx(0.5 * 2.0 + 0.5 * 0.4 * 2.0 * 0.01 * 100.0)
+    bed = Bed(
+        "step",
+        1.0,
+        1.0,
+        np.zeros((1, 3)),
+        np.array([0.1]),
+        np.array([2.0]),
+        np.array([[1.0, 0.0, 0.0]]),
+        np.array([[0.0, 10.0, 0.0]]),
+        {},
+        0,
+    )
+    assert bed.kinetic_energy_per_particle() == pytest.approx(
+        0.5 * 2.0 + 0.5 * 0.4 * 2.0 * 0.01 * 100.0
+    )
 
 
 def test_blade_tip_centre_conversion(config):

@@ -6,10 +6,23 @@ from dozerlab.scenarios import add_blade, build_bed, make_world, start_tip
 from dozerlab.scenarios.heightfield import height_field
 
 SMALL = {
-    "bed": {"length": 0.6, "width": 0.2, "radius": 0.025, "iterations": 15, "max_settle_time": 8.0,
-            "emitter_speed": 2.0, "settle_kinetic_energy": 2.0e-4},
+    "bed": {
+        "length": 0.6,
+        "width": 0.2,
+        "radius": 0.025,
+        "iterations": 15,
+        "max_settle_time": 8.0,
+        "emitter_speed": 2.0,
+        "settle_kinetic_energy": 2.0e-4,
+    },
     "scenarios": {
-        "hill": {"base_height": 0.04, "peak_height": 0.2, "center": 0.5, "half_width": 0.3, "goal_height": 0.08},
+        "hill": {
+            "base_height": 0.04,
+            "peak_height": 0.2,
+            "center": 0.5,
+            "half_width": 0.3,
+            "goal_height": 0.08,
+        },
         "step": {"high_height": 0.14, "low_height": 0.04, "edge": 0.5, "goal_height": 0.08},
     },
     "blade": {"width": 0.2, "height": 0.15, "thickness": 0.02},
@@ -67,7 +80,9 @@ def test_build_is_deterministic_for_a_seed():
     np.testing.assert_array_equal(again.positions, first.positions)
     np.testing.assert_array_equal(again.radii, first.radii)
     other = build_bed("step", {**tiny, "seed": tiny["seed"] + 1}, progress=False)
-    assert other.positions.shape != first.positions.shape or not np.array_equal(other.positions, first.positions)
+    assert other.positions.shape != first.positions.shape or not np.array_equal(
+        other.positions, first.positions
+    )
 
 
 def test_make_world_restores_the_bed_and_takes_the_blade(beds, small_config):
@@ -84,8 +99,11 @@ def test_make_world_restores_the_bed_and_takes_the_blade(beds, small_config):
     # The bed stays in place (it only creeps) while the blade travels behind the start wall.
     assert np.abs(world.positions - bed.positions).max() < 0.5 * bed.radii.min()
     g = small_config["blade"]
-    np.testing.assert_allclose(world.body_position(blade),
-                               tip + [5 * 0.005 - g["thickness"] / 2, 0.0, g["height"] / 2], atol=1e-12)
+    np.testing.assert_allclose(
+        world.body_position(blade),
+        tip + [5 * 0.005 - g["thickness"] / 2, 0.0, g["height"] / 2],
+        atol=1e-12,
+    )
 
 
 def test_unknown_scenario_is_refused(small_config):

@@ -8,16 +8,36 @@ from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.trajectory import Trajectory
 
 TINY = {
-    "bed": {"length": 0.25, "width": 0.12, "radius": 0.025, "iterations": 15, "emitter_speed": 2.0,
-            "settle_kinetic_energy": 2.0e-4},
+    "bed": {
+        "length": 0.25,
+        "width": 0.12,
+        "radius": 0.025,
+        "iterations": 15,
+        "emitter_speed": 2.0,
+        "settle_kinetic_energy": 2.0e-4,
+    },
     "scenarios": {"step": {"high_height": 0.14, "low_height": 0.04, "goal_height": 0.08}},
 }
 
 
 def test_bed_command_writes_bed_and_plot(tmp_path, capsys):
     out, png = tmp_path / "beds" / "step.npz", tmp_path / "step.png"
-    rc = main(["bed", "--scenario", "step", "--config", json.dumps(TINY), "--out", str(out),
-               "--plot", str(png), "--threads", "1", "--no-progress"])
+    rc = main(
+        [
+            "bed",
+            "--scenario",
+            "step",
+            "--config",
+            json.dumps(TINY),
+            "--out",
+            str(out),
+            "--plot",
+            str(png),
+            "--threads",
+            "1",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     bed = Bed.load(out)
     assert bed.scenario == "step" and bed.count > 10 and bed.settle_time.size > 0
@@ -27,8 +47,23 @@ def test_bed_command_writes_bed_and_plot(tmp_path, capsys):
 def test_trajectory_command_writes_csv_and_plot(step_bed, tmp_path):
     step_bed.save(tmp_path / "step.npz")
     out, png = tmp_path / "t" / "speed~1.0_depth~0.1.csv", tmp_path / "t.png"
-    rc = main(["trajectory", "--bed", str(tmp_path / "step.npz"), "--speed", "1.0", "--depth", "0.1",
-               "--config", "{}", "--out", str(out), "--plot", str(png)])
+    rc = main(
+        [
+            "trajectory",
+            "--bed",
+            str(tmp_path / "step.npz"),
+            "--speed",
+            "1.0",
+            "--depth",
+            "0.1",
+            "--config",
+            "{}",
+            "--out",
+            str(out),
+            "--plot",
+            str(png),
+        ]
+    )
     assert rc == 0
     traj = Trajectory.load_csv(out)
     np.testing.assert_allclose(np.linalg.norm(traj.velocity, axis=1), 1.0, rtol=1e-9)
@@ -36,13 +71,23 @@ def test_trajectory_command_writes_csv_and_plot(step_bed, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "args, message",
+    ("args", "message"),
     [
         (["bed", "--scenario", "dune", "--out", "x.npz"], "--scenario must be one of"),
         (["trajectory", "--speed", "-1", "--depth", "0.1"], "speed must be"),
         (["trajectory", "--speed", "1", "--depth", "2.0"], "deeper than the bed"),
-        (["trajectory", "--speed", "1", "--depth", "0.1", "--config",
-          '{"scenarios": {"step": {"goal_height": 3.0}}}'], "outside the bed"),
+        (
+            [
+                "trajectory",
+                "--speed",
+                "1",
+                "--depth",
+                "0.1",
+                "--config",
+                '{"scenarios": {"step": {"goal_height": 3.0}}}',
+            ],
+            "outside the bed",
+        ),
     ],
 )
 def test_bad_arguments_exit_2_with_a_clear_message(step_bed, tmp_path, capsys, args, message):
@@ -60,8 +105,20 @@ def test_bed_command_logs_an_mlflow_run(tmp_path, monkeypatch):
     monkeypatch.setenv("DOZERLAB_MLFLOW", "1")
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
     monkeypatch.chdir(tmp_path)
-    rc = main(["bed", "--scenario", "step", "--config", json.dumps(TINY), "--out", "b.npz",
-               "--plot", "b.png", "--no-progress"])
+    rc = main(
+        [
+            "bed",
+            "--scenario",
+            "step",
+            "--config",
+            json.dumps(TINY),
+            "--out",
+            "b.npz",
+            "--plot",
+            "b.png",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     runs = mlflow.search_runs(experiment_names=["dozerlab"], output_format="list")
     assert len(runs) == 1

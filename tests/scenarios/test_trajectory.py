@@ -15,13 +15,15 @@ def cutting_region(traj, config, margin=0.02):
     x = traj.position[:, 0]
     # The ease is applied at the path's vertices, so it is complete one height cell later.
     cell = traj.height_x[1] - traj.height_x[0]
-    approach_end = traj.position[0, 0] + config["trajectory"]["approach_steps"] * traj.speed * traj.dt + cell
+    approach_end = (
+        traj.position[0, 0] + config["trajectory"]["approach_steps"] * traj.speed * traj.dt + cell
+    )
     h = surface_at(traj, x)
     past = x > approach_end
     return past & (h >= traj.goal_height + margin), past & (h < traj.goal_height - margin), h
 
 
-@pytest.mark.parametrize("speed, depth", [(1.0, 0.1), (0.5, 0.05), (1.5, 0.15)])
+@pytest.mark.parametrize(("speed", "depth"), [(1.0, 0.1), (0.5, 0.05), (1.5, 0.15)])
 def test_hill_path_follows_the_rule_at_constant_speed(hill_bed, config, speed, depth):
     traj = plan_trajectory(hill_bed, speed, depth, config)
     above, below, h = cutting_region(traj, config)
@@ -88,7 +90,7 @@ def test_walk_path_keeps_chord_length_around_corners():
 
 
 @pytest.mark.parametrize(
-    "speed, depth, goal, match",
+    ("speed", "depth", "goal", "match"),
     [
         (0.0, 0.1, None, "speed"),
         (-1.0, 0.1, None, "speed"),

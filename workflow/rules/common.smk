@@ -10,7 +10,7 @@ import sys
 
 from dozerlab import tracking
 from dozerlab.config import load_config, schema
-from dozerlab.report import points as P
+from dozerlab import sweep as P
 
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))

@@ -35,10 +35,15 @@ _HEADER = np.dtype([("bins", "<i4", 3), ("bin_size", "<f4", 3)])
 
 
 def _record_dtype(bins: Sequence[int]) -> np.dtype:
-    return np.dtype([
-        ("time", "<f4"), ("force", "<f4", 3), ("torque", "<f4", 3), ("blade_velocity", "<f4", 3),
-        ("cells", "<f4", (*bins, 4)),
-    ])
+    return np.dtype(
+        [
+            ("time", "<f4"),
+            ("force", "<f4", 3),
+            ("torque", "<f4", 3),
+            ("blade_velocity", "<f4", 3),
+            ("cells", "<f4", (*bins, 4)),
+        ]
+    )
 
 
 def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, float, float], int]:
@@ -53,7 +58,9 @@ def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, fl
     header = np.fromfile(path, dtype=_HEADER, count=1)[0]
     bins = tuple(int(n) for n in header["bins"])
     if min(bins) < 1 or max(bins) > 4096:
-        raise ValueError(f"{path}: bin counts {bins} at byte offset 0 are outside 1..4096 (not a legacy field file?)")
+        raise ValueError(
+            f"{path}: bin counts {bins} at byte offset 0 are outside 1..4096 (not a legacy field file?)"
+        )
     bin_size = tuple(float(s) for s in header["bin_size"])
     if not all(np.isfinite(s) and 0 < s < 1e3 for s in bin_size):
         raise ValueError(f"{path}: bin sizes {bin_size} at byte offset 12 are not in (0, 1000) m")
@@ -82,18 +89,28 @@ def import_legacy(
     """
     src = Path(src)
     bins, bin_size, steps = read_header(src)
-    l = np.asarray(bin_size, dtype=np.float64)
+    size = np.asarray(bin_size, dtype=np.float64)
     n = np.asarray(bins)
-    lo = np.array([0.0, -n[1] * l[1] / 2, 0.0]) if lower is None else np.asarray(lower, dtype=np.float64)
+    lo = (
+        np.array([0.0, -n[1] * size[1] / 2, 0.0])
+        if lower is None
+        else np.asarray(lower, dtype=np.float64)
+    )
     if lo.shape != (3,):
         raise ValueError(f"lower must be three lengths (x, y, z) in m, got {lower}")
-    x, y, z = (lo[a] + (np.arange(n[a]) + 0.5) * l[a] for a in range(3))
-    attrs = {a: None for a in ATTRS} | {
-        "scenario": "legacy", "bins": list(bins), "bin_size": list(bin_size), "dozerlab_version": __version__,
-        "config": json.dumps({}), "source": f"legacy binary {src.name}",
+    x, y, z = (lo[a] + (np.arange(n[a]) + 0.5) * size[a] for a in range(3))
+    attrs = dict.fromkeys(ATTRS) | {
+        "scenario": "legacy",
+        "bins": list(bins),
+        "bin_size": list(bin_size),
+        "dozerlab_version": __version__,
+        "config": json.dumps({}),
+        "source": f"legacy binary {src.name}",
         "blade_position_origin": "integrated from blade_velocity; zero at the first step",
     }
-    records = np.memmap(src, dtype=_record_dtype(bins), mode="r", offset=HEADER_BYTES, shape=(steps,))
+    records = np.memmap(
+        src, dtype=_record_dtype(bins), mode="r", offset=HEADER_BYTES, shape=(steps,)
+    )
     position = np.zeros(3)
     last_time = -np.inf
     with FieldStoreWriter(out, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps) as w:
@@ -102,12 +119,22 @@ def import_legacy(
             t = float(rec["time"])
             if not np.isfinite(t) or t < last_time:
                 offset = HEADER_BYTES + i * records.dtype.itemsize
-                raise ValueError(f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and non-decreasing")
+                raise ValueError(
+                    f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and non-decreasing"
+                )
             if i:
                 position = position + records[i - 1]["blade_velocity"] * (t - last_time)
             last_time = t
             cells = rec["cells"]
-            w.append(t, cells[..., :3], cells[..., 3], rec["force"], rec["torque"], rec["blade_velocity"], position)
+            w.append(
+                t,
+                cells[..., :3],
+                cells[..., 3],
+                rec["force"],
+                rec["torque"],
+                rec["blade_velocity"],
+                position,
+            )
     return Path(out)
 
 
@@ -115,16 +142,22 @@ def export_legacy(store: str | Path, out: str | Path) -> Path:
     """Write a field store as a legacy binary file (``blade_position`` is not part of the format)."""
     ds = open_store(store)
     nx, ny, nz = (ds.sizes[d] for d in ("x", "y", "z"))
-    bin_size = ds.attrs.get("bin_size") or [float(np.diff(ds[d].values[:2])[0]) if ds.sizes[d] > 1 else 0.0 for d in "xyz"]
+    bin_size = ds.attrs.get("bin_size") or [
+        float(np.diff(ds[d].values[:2])[0]) if ds.sizes[d] > 1 else 0.0 for d in "xyz"
+    ]
     if len(bin_size) != 3 or min(bin_size) <= 0:
         raise ValueError(f"{store}: cannot export: bin_size {bin_size} must be three lengths > 0")
     steps = ds.sizes["time"]
     header = np.array([((nx, ny, nz), bin_size)], dtype=_HEADER)
     record = _record_dtype((nx, ny, nz))
-    block = int(ds["velocity"].encoding.get("preferred_chunks", {}).get("time", DEFAULT_CHUNK_STEPS))
+    block = int(
+        ds["velocity"].encoding.get("preferred_chunks", {}).get("time", DEFAULT_CHUNK_STEPS)
+    )
     with atomic_output(out) as tmp, open(tmp, "wb") as f:
         f.write(header.tobytes())
-        for start in tqdm(range(0, steps, block), desc=f"export {Path(store).name}", unit="chunk", disable=None):
+        for start in tqdm(
+            range(0, steps, block), desc=f"export {Path(store).name}", unit="chunk", disable=None
+        ):
             part = ds.isel(time=slice(start, start + block))
             rec = np.zeros(part.sizes["time"], dtype=record)
             rec["time"] = part["time"].values

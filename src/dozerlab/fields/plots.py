@@ -23,8 +23,14 @@ def _blade_size(ds: xr.Dataset) -> tuple[float, float]:
     """(thickness, height) of the blade in m, from the store's config or the volume's extent."""
     blade = store_config(ds).get("blade", {})
     x = ds["x"].values
-    top = float(ds["z"].values[-1] + (ds["z"].values[-1] - ds["z"].values[-2]) / 2) if ds.sizes["z"] > 1 else 0.0
-    return float(blade.get("thickness", 0.04 * (x[-1] - x[0] + 1e-9))), float(blade.get("height", max(top, 0.0)))
+    top = (
+        float(ds["z"].values[-1] + (ds["z"].values[-1] - ds["z"].values[-2]) / 2)
+        if ds.sizes["z"] > 1
+        else 0.0
+    )
+    return float(blade.get("thickness", 0.04 * (x[-1] - x[0] + 1e-9))), float(
+        blade.get("height", max(top, 0.0))
+    )
 
 
 class _Slice:
@@ -35,12 +41,22 @@ class _Slice:
         self.j = ds.sizes["y"] // 2
         x, z = ds["x"].values, ds["z"].values
         ax = self.ax = fig.add_subplot()
-        self.mesh = ax.pcolormesh(x, z, np.zeros((z.size, x.size)), shading="nearest", cmap="viridis",
-                                  vmin=0.0, vmax=vmax)
+        self.mesh = ax.pcolormesh(
+            x, z, np.zeros((z.size, x.size)), shading="nearest", cmap="viridis", vmin=0.0, vmax=vmax
+        )
         fig.colorbar(self.mesh, ax=ax, label="density (kg/m³)")
         xx, zz = np.meshgrid(x, z, indexing="ij")
-        self.arrows = ax.quiver(xx.ravel(), zz.ravel(), np.zeros(xx.size), np.zeros(xx.size),
-                                color="white", angles="xy", scale_units="xy", scale=None, width=0.003)
+        self.arrows = ax.quiver(
+            xx.ravel(),
+            zz.ravel(),
+            np.zeros(xx.size),
+            np.zeros(xx.size),
+            color="white",
+            angles="xy",
+            scale_units="xy",
+            scale=None,
+            width=0.003,
+        )
         thickness, height = _blade_size(ds)
         ax.fill_between([-thickness, 0.0], 0.0, height, color="0.4", label="blade")
         ax.set_xlim(-thickness, x[-1] + (x[-1] - x[-2] if x.size > 1 else thickness) / 2)
@@ -51,13 +67,18 @@ class _Slice:
     def show(self, step: int) -> None:
         ds, j = self.ds, self.j
         rho = ds["density"].isel(time=step, y=j).values  # (Nx, Nz)
-        rel = ds["velocity"].isel(time=step, y=j).values - ds["blade_velocity"].isel(time=step).values
+        rel = (
+            ds["velocity"].isel(time=step, y=j).values - ds["blade_velocity"].isel(time=step).values
+        )
         rel[rho <= 0] = 0.0  # no arrows in empty bins
         self.mesh.set_array(rho.T.ravel())
         self.arrows.set_UVC(rel[..., 0].ravel(), rel[..., 2].ravel())
         t = float(ds["time"].values[step])
-        self.ax.set_title(f"t = {t:.2f} s, y = {float(ds['y'].values[j]):+.3f} m; "
-                          "arrows: velocity relative to the blade", fontsize=9)
+        self.ax.set_title(
+            f"t = {t:.2f} s, y = {float(ds['y'].values[j]):+.3f} m; "
+            "arrows: velocity relative to the blade",
+            fontsize=9,
+        )
 
 
 def _density_max(ds: xr.Dataset) -> float:
@@ -92,8 +113,10 @@ def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
         ax.legend(loc="upper left", fontsize=8, ncol=4)
         ax.grid(alpha=0.3)
     ax_t.set_xlabel("time (s)")
-    ax_f.set_title(f"blade force and torque about the tip — {ds.attrs.get('scenario')}, "
-                   f"v = {ds.attrs.get('speed')} m/s, d = {ds.attrs.get('depth')} m")
+    ax_f.set_title(
+        f"blade force and torque about the tip — {ds.attrs.get('scenario')}, "
+        f"v = {ds.attrs.get('speed')} m/s, d = {ds.attrs.get('depth')} m"
+    )
     with atomic_output(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     return Path(path)
@@ -129,8 +152,14 @@ def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10
     return Path(path)
 
 
-def plot_run(ds: xr.Dataset, out_dir: str | Path, *, steps: Sequence[int] | None = None,
-             animation: bool = True, frames: int = 60) -> list[Path]:
+def plot_run(
+    ds: xr.Dataset,
+    out_dir: str | Path,
+    *,
+    steps: Sequence[int] | None = None,
+    animation: bool = True,
+    frames: int = 60,
+) -> list[Path]:
     """Write slices at ``steps`` (default: four spread over the run), the force plot and a GIF
     of ``frames`` frames."""
     out = Path(out_dir)

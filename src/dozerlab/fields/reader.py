@@ -14,6 +14,7 @@ so the result is always the same array ``zarr.open_array(path / name)[start:stop
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import os
 import threading
@@ -75,7 +76,9 @@ def _layout(meta: dict[str, Any]) -> _Layout | None:
         return None
     if not ok:
         return None
-    return _Layout(shape, int(shard[0]), int(inner[0]), names[-1] == "blosc", float(meta["fill_value"]))
+    return _Layout(
+        shape, int(shard[0]), int(inner[0]), names[-1] == "blosc", float(meta["fill_value"])
+    )
 
 
 def _decode(src: memoryview, dest: np.ndarray, compressed: bool, where: str) -> None:
@@ -84,7 +87,9 @@ def _decode(src: memoryview, dest: np.ndarray, compressed: bool, where: str) -> 
         # Blosc header: bytes 4-8 hold the decoded size (little-endian uint32).
         nbytes = int.from_bytes(src[4:8], "little") if len(src) >= 16 else -1
         if nbytes != dest.nbytes:
-            raise ValueError(f"{where}: inner chunk decodes to {nbytes} bytes, expected {dest.nbytes}")
+            raise ValueError(
+                f"{where}: inner chunk decodes to {nbytes} bytes, expected {dest.nbytes}"
+            )
         blosc.decompress(src, dest)
     else:
         if len(src) != dest.nbytes:
@@ -101,7 +106,9 @@ def _read_index(f: Any, file: Path, n_inner: int) -> tuple[np.ndarray, int]:
     raw = os.pread(f.fileno(), index_bytes + 4, size - index_bytes - 4)
     if google_crc32c.value(raw[:-4]) != int.from_bytes(raw[-4:], "little"):
         raise ValueError(f"{file}: shard index fails its CRC32C check")
-    return np.frombuffer(raw, dtype="<u8", count=2 * n_inner).reshape(n_inner, 2), size - index_bytes - 4
+    return np.frombuffer(raw, dtype="<u8", count=2 * n_inner).reshape(
+        n_inner, 2
+    ), size - index_bytes - 4
 
 
 class _Task:
@@ -113,8 +120,17 @@ class _Task:
 
     _buffers = threading.local()
 
-    def __init__(self, file: Path, lay: _Layout, out: np.ndarray, start: int, stop: int,
-                 shard: int, first: int, last: int) -> None:
+    def __init__(
+        self,
+        file: Path,
+        lay: _Layout,
+        out: np.ndarray,
+        start: int,
+        stop: int,
+        shard: int,
+        first: int,
+        last: int,
+    ) -> None:
         self.file, self.lay, self.out, self.start, self.stop = file, lay, out, start, stop
         self.s0, self.first, self.last = shard * lay.shard_steps, first, last
 
@@ -136,11 +152,11 @@ class _Task:
         if not self.file.exists():
             for k in range(self.first, self.last + 1):
                 _, a, b = self._rows(k)
-                out[a - start:b - start] = lay.fill_value
+                out[a - start : b - start] = lay.fill_value
             return
         with open(self.file, "rb") as f:
             index, data_end = _read_index(f, self.file, lay.shard_steps // lay.inner_steps)
-            index = index[self.first:self.last + 1]
+            index = index[self.first : self.last + 1]
             present = index[:, 0] != _MISSING
             lo = int(index[present, 0].min()) if present.any() else 0
             hi = int((index[present, 0] + index[present, 1]).max()) if present.any() else 0
@@ -154,17 +170,17 @@ class _Task:
         for k, (offset, nbytes) in enumerate(index, start=self.first):
             c0, a, b = self._rows(k)
             if offset == _MISSING:
-                out[a - start:b - start] = lay.fill_value
+                out[a - start : b - start] = lay.fill_value
                 continue
-            src = memoryview(data)[int(offset) - lo:int(offset + nbytes) - lo]
+            src = memoryview(data)[int(offset) - lo : int(offset + nbytes) - lo]
             # Edge chunks are stored whole (padded with fill): decode aside, copy the rows used.
             if (a, b) == (c0, c0 + lay.inner_steps):
-                _decode(src, out[a - start:b - start], lay.compressed, str(self.file))
+                _decode(src, out[a - start : b - start], lay.compressed, str(self.file))
             else:
                 scratch = self._buffer("scratch", lay.inner_steps * step).view(np.float32)
                 scratch = scratch.reshape(lay.inner_steps, *lay.shape[1:])
                 _decode(src, scratch, lay.compressed, str(self.file))
-                out[a - start:b - start] = scratch[a - c0:b - c0]
+                out[a - start : b - start] = scratch[a - c0 : b - c0]
 
 
 @functools.lru_cache(maxsize=4)
@@ -175,7 +191,12 @@ def _pool(workers: int) -> ThreadPoolExecutor:
 
 
 def read_field(
-    path: str | Path, name: str, start: int = 0, stop: int | None = None, *, threads: int | None = None
+    path: str | Path,
+    name: str,
+    start: int = 0,
+    stop: int | None = None,
+    *,
+    threads: int | None = None,
 ) -> np.ndarray:
     """Steps ``start:stop`` of array ``name`` of the store at ``path``, as float32 (C order).
 
@@ -206,7 +227,10 @@ def read_field(
         last = (min(stop, s0 + lay.shard_steps) - s0 - 1) // lay.inner_steps
         bounds = np.linspace(first, last + 1, min(pieces, last + 1 - first) + 1).astype(int)
         file = array_dir / "c" / str(shard) / key
-        tasks += [_Task(file, lay, out, start, stop, shard, int(a), int(b) - 1) for a, b in zip(bounds[:-1], bounds[1:])]
+        tasks += [
+            _Task(file, lay, out, start, stop, shard, int(a), int(b) - 1)
+            for a, b in itertools.pairwise(bounds)
+        ]
     if workers == 1 or len(tasks) == 1:
         for task in tasks:
             task()

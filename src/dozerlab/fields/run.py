@@ -46,13 +46,21 @@ class RunStats:
         out = {
             "wall_time_s": self.wall_time,
             "steps_per_s": self.steps / self.step_time if self.step_time > 0 else 0.0,
-            "contact_iterations_per_s": self.contact_iterations / self.step_time if self.step_time > 0 else 0.0,
-            "sampling_fraction_of_step": self.sample_time / self.step_time if self.step_time > 0 else 0.0,
+            "contact_iterations_per_s": self.contact_iterations / self.step_time
+            if self.step_time > 0
+            else 0.0,
+            "sampling_fraction_of_step": self.sample_time / self.step_time
+            if self.step_time > 0
+            else 0.0,
             "particle_count": float(particles),
         }
         if len(f):
-            out |= {"force_x_mean": float(f[:, 0].mean()), "force_x_peak": float(np.abs(f[:, 0]).max()),
-                    "force_mag_mean": float(mag.mean()), "force_mag_peak": float(mag.max())}
+            out |= {
+                "force_x_mean": float(f[:, 0].mean()),
+                "force_x_peak": float(np.abs(f[:, 0]).max()),
+                "force_mag_mean": float(mag.mean()),
+                "force_mag_peak": float(mag.max()),
+            }
         return out
 
 
@@ -67,7 +75,8 @@ def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
 
     pos = np.asarray(world.positions)
     mesh = meshio.Mesh(
-        points=pos, cells=[("vertex", np.arange(len(pos)).reshape(-1, 1))],
+        points=pos,
+        cells=[("vertex", np.arange(len(pos)).reshape(-1, 1))],
         point_data={"radius": np.asarray(world.radii), "velocity": np.asarray(world.velocities)},
     )
     with atomic_output(vtk_dir / f"particles_{step:06d}.vtu") as tmp:
@@ -103,22 +112,40 @@ def simulate(
     traj = Trajectory.load_csv(trajectory_path)
     dt = float(config["solver"]["dt"])
     if not np.isclose(traj.dt, dt, rtol=1e-6):
-        raise ValueError(f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config")
+        raise ValueError(
+            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
+        )
     scenario = scenario or bed.scenario
-    speed = speed if speed is not None else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
+    speed = (
+        speed
+        if speed is not None
+        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
+    )
     depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
     s = config["sampling"]
     grid = SamplingGrid.from_config(config)
     attrs = {
-        "scenario": scenario, "speed": speed, "depth": depth, "bins": list(grid.bins),
-        "bin_size": list(grid.bin_size), "dt": dt, "iterations": int(config["solver"]["iterations"]),
-        "sample_every": int(s["every"]), "particle_count": bed.count, "seed": int(config["seed"]),
-        "dozerlab_version": __version__, "config": json.dumps(config, sort_keys=True),
+        "scenario": scenario,
+        "speed": speed,
+        "depth": depth,
+        "bins": list(grid.bins),
+        "bin_size": list(grid.bin_size),
+        "dt": dt,
+        "iterations": int(config["solver"]["iterations"]),
+        "sample_every": int(s["every"]),
+        "particle_count": bed.count,
+        "seed": int(config["seed"]),
+        "dozerlab_version": __version__,
+        "config": json.dumps(config, sort_keys=True),
     }
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
     name = f"simulate {scenario} v={speed} d={depth}"
-    with tracking.tracked_run(name, rule="simulate", tags={"scenario": scenario, "speed": speed, "depth": depth},
-                              params=params) as run:
+    with tracking.tracked_run(
+        name,
+        rule="simulate",
+        tags={"scenario": scenario, "speed": speed, "depth": depth},
+        params=params,
+    ) as run:
         stats = _drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every)
         metrics = stats.metrics(bed.count)
         log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
@@ -148,8 +175,12 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
     x, y, z = grid.centres()
     start = wallclock.perf_counter()
     window: list[tuple[float, int, float, float]] = []
-    with FieldStoreWriter(out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])) as writer:
-        for i in tqdm(range(traj.steps), desc=f"simulate {attrs['scenario']}", unit="step", disable=None):
+    with FieldStoreWriter(
+        out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])
+    ) as writer:
+        for i in tqdm(
+            range(traj.steps), desc=f"simulate {attrs['scenario']}", unit="step", disable=None
+        ):
             world.set_velocity(blade, traj.velocity[i])
             t0 = wallclock.perf_counter()
             try:
@@ -167,25 +198,38 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()
                 tip = traj.position[i + 1]
-                vel, rho = grid.sample(world.positions, world.velocities, world.radii, world.masses, tip)
+                vel, rho = grid.sample(
+                    world.positions, world.velocities, world.radii, world.masses, tip
+                )
                 stats.sample_time += wallclock.perf_counter() - t1
                 force = np.asarray(world.force_on(blade), dtype=np.float64)
                 stats.forces.append(force)
                 torque = world.torque_on(blade) + np.cross(centre_minus_tip, force)
-                writer.append(float(traj.time[i + 1]), vel, rho, force, torque, traj.velocity[i], tip)
+                writer.append(
+                    float(traj.time[i + 1]), vel, rho, force, torque, traj.velocity[i], tip
+                )
             if vtk is not None and (i + 1) % vtk_every == 0:
                 _write_vtk(vtk, i + 1, world)
             if (i + 1) % log_every == 0 or i + 1 == traj.steps:
                 w = np.array(window)
-                log.info("step %d/%d t=%.3f s: contacts %.0f, residual %.3g m/s, max overlap %.3g m, %.1f ms/step",
-                         i + 1, traj.steps, traj.time[i + 1], w[:, 1].mean(), w[:, 2].mean(), w[:, 3].max(),
-                         1e3 * w[:, 0].mean())
+                log.info(
+                    "step %d/%d t=%.3f s: contacts %.0f, residual %.3g m/s, max overlap %.3g m, %.1f ms/step",
+                    i + 1,
+                    traj.steps,
+                    traj.time[i + 1],
+                    w[:, 1].mean(),
+                    w[:, 2].mean(),
+                    w[:, 3].max(),
+                    1e3 * w[:, 0].mean(),
+                )
                 window.clear()
     stats.wall_time = wallclock.perf_counter() - start
     return stats
 
 
-def _plots_and_metrics(out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any) -> None:
+def _plots_and_metrics(
+    out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any
+) -> None:
     """Write the store's plots to ``plots_dir`` and log them and the metrics to the MLflow ``run``."""
     from dozerlab.fields.plots import plot_run
 

@@ -29,7 +29,6 @@ from typing import Any
 import numba
 import numpy as np
 
-
 _MAX_SPAN = 64  # most bins one particle's bounding box may span per axis
 
 
@@ -133,7 +132,8 @@ class SamplingGrid:
     def centres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bin-centre coordinates (x (Nx,), y (Ny,), z (Nz,)) in the blade frame, m."""
         return tuple(  # type: ignore[return-value]
-            lo + (np.arange(n) + 0.5) * l for lo, n, l in zip(self.lower, self.bins, self.bin_size, strict=True)
+            lo + (np.arange(n) + 0.5) * size
+            for lo, n, size in zip(self.lower, self.bins, self.bin_size, strict=True)
         )
 
     def _sums(self, positions, velocities, radii, masses, tip):  # type: ignore[no-untyped-def]
@@ -142,7 +142,12 @@ class SamplingGrid:
         radii = np.ascontiguousarray(radii, dtype=np.float64)
         masses = np.ascontiguousarray(masses, dtype=np.float64)
         n = positions.shape[0]
-        if positions.shape != (n, 3) or velocities.shape != (n, 3) or radii.shape != (n,) or masses.shape != (n,):
+        if (
+            positions.shape != (n, 3)
+            or velocities.shape != (n, 3)
+            or radii.shape != (n,)
+            or masses.shape != (n,)
+        ):
             raise ValueError(
                 "positions/velocities must be (N, 3) and radii/masses (N,), got "
                 f"{positions.shape}, {velocities.shape}, {radii.shape}, {masses.shape}"
@@ -150,13 +155,25 @@ class SamplingGrid:
         if n and radii.min() <= 0:
             raise ValueError("particle radii must be > 0")
         if n and 2 * radii.max() / min(self.bin_size) > _MAX_SPAN - 2:
-            raise ValueError(f"particles span more than {_MAX_SPAN - 2} bins; use fewer, larger bins")
+            raise ValueError(
+                f"particles span more than {_MAX_SPAN - 2} bins; use fewer, larger bins"
+            )
         wsum = np.zeros(self.bins)
         wvel = np.zeros((*self.bins, 3))
         wmass = np.zeros(self.bins)
         lower = np.asarray(tip, dtype=np.float64) + np.asarray(self.lower)
-        _accumulate(positions, velocities, radii, masses, lower, np.asarray(self.bin_size, dtype=np.float64),
-                    np.asarray(self.bins, dtype=np.int64), wsum, wvel, wmass)
+        _accumulate(
+            positions,
+            velocities,
+            radii,
+            masses,
+            lower,
+            np.asarray(self.bin_size, dtype=np.float64),
+            np.asarray(self.bins, dtype=np.int64),
+            wsum,
+            wvel,
+            wmass,
+        )
         return wsum, wvel, wmass
 
     def weights(self, positions: np.ndarray, radii: np.ndarray, tip: np.ndarray) -> np.ndarray:
@@ -166,11 +183,18 @@ class SamplingGrid:
         """
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         n = positions.shape[0]
-        wsum, _, _ = self._sums(positions, np.zeros((n, 3)), np.asarray(radii).reshape(n), np.ones(n), tip)
+        wsum, _, _ = self._sums(
+            positions, np.zeros((n, 3)), np.asarray(radii).reshape(n), np.ones(n), tip
+        )
         return wsum
 
     def sample(
-        self, positions: np.ndarray, velocities: np.ndarray, radii: np.ndarray, masses: np.ndarray, tip: np.ndarray
+        self,
+        positions: np.ndarray,
+        velocities: np.ndarray,
+        radii: np.ndarray,
+        masses: np.ndarray,
+        tip: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Sample the fields at the blade's ``tip`` (3,), world frame, m.
 

@@ -68,8 +68,18 @@ UNITS = {
 }
 #: Attributes every store carries (values may be null where a source lacks them).
 ATTRS = (
-    "scenario", "speed", "depth", "bins", "bin_size", "dt", "iterations", "sample_every",
-    "particle_count", "seed", "dozerlab_version", "config",
+    "scenario",
+    "speed",
+    "depth",
+    "bins",
+    "bin_size",
+    "dt",
+    "iterations",
+    "sample_every",
+    "particle_count",
+    "seed",
+    "dozerlab_version",
+    "config",
 )
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
@@ -120,12 +130,16 @@ class FieldStoreWriter:
         if inner_steps is None:
             inner_steps = math.gcd(chunk_steps, DEFAULT_INNER_STEPS)
         if not 1 <= inner_steps <= chunk_steps or chunk_steps % inner_steps:
-            raise ValueError(f"inner_steps must divide chunk_steps={chunk_steps}, got {inner_steps}")
+            raise ValueError(
+                f"inner_steps must divide chunk_steps={chunk_steps}, got {inner_steps}"
+            )
         self.coords = {}
         for name, c in (("x", x), ("y", y), ("z", z)):
             c = np.ascontiguousarray(c, dtype=np.float32)
             if c.ndim != 1 or c.size < 1:
-                raise ValueError(f"coordinate {name} must be a non-empty 1-D array, got shape {c.shape}")
+                raise ValueError(
+                    f"coordinate {name} must be a non-empty 1-D array, got shape {c.shape}"
+                )
             self.coords[name] = c
         try:
             self.attrs = json.loads(json.dumps(dict(attrs), allow_nan=False))
@@ -158,13 +172,19 @@ class FieldStoreWriter:
     def _create(self, tmp: Path) -> None:
         group = zarr.open_group(tmp, mode="w", zarr_format=3)
         for name, c in self.coords.items():
-            a = group.create_array(name, shape=c.shape, dtype="f4", dimension_names=(name,), compressors=None)
+            a = group.create_array(
+                name, shape=c.shape, dtype="f4", dimension_names=(name,), compressors=None
+            )
             a[:] = c
             a.attrs.update({"units": "m", "long_name": f"bin centre {name}, blade frame"})
-        comp = group.create_array("component", shape=(3,), dtype=str, dimension_names=("component",))
+        comp = group.create_array(
+            "component", shape=(3,), dtype=str, dimension_names=("component",)
+        )
         comp[:] = np.array(COMPONENTS)
         n = self.chunk_steps
-        t = group.create_array("time", shape=(0,), chunks=(n,), dtype="f8", dimension_names=("time",), fill_value=0.0)
+        t = group.create_array(
+            "time", shape=(0,), chunks=(n,), dtype="f8", dimension_names=("time",), fill_value=0.0
+        )
         t.attrs["units"] = "s"
         self._arrays["time"] = t
         self._buf["time"] = np.zeros(n, dtype=np.float64)
@@ -209,8 +229,12 @@ class FieldStoreWriter:
         if self._stack is None:
             raise RuntimeError("FieldStoreWriter.append called outside its `with` block")
         values = {
-            "velocity": velocity, "density": density, "force": force, "torque": torque,
-            "blade_velocity": blade_velocity, "blade_position": blade_position,
+            "velocity": velocity,
+            "density": density,
+            "force": force,
+            "torque": torque,
+            "blade_velocity": blade_velocity,
+            "blade_position": blade_position,
         }
         i = self._fill
         for name, v in values.items():
@@ -235,7 +259,10 @@ class FieldStoreWriter:
         self._fill = 0
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> bool:
         stack, self._stack = self._stack, None
         assert stack is not None
@@ -280,7 +307,9 @@ def write_store(
     for name, v in zip(SCHEMA, series, strict=True):
         if len(v) != time.size:
             raise ValueError(f"{name} has {len(v)} steps but time has {time.size}")
-    with FieldStoreWriter(path, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps, **writer_options) as w:
+    with FieldStoreWriter(
+        path, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps, **writer_options
+    ) as w:
         for i in range(time.size):
             w.append(float(time[i]), *(v[i] for v in series))
     return Path(path)
@@ -324,4 +353,3 @@ def store_config(ds: xr.Dataset) -> dict[str, Any]:
     if not text:
         return {}
     return json.loads(text) if isinstance(text, str) else dict(text)
-

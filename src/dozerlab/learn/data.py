@@ -59,7 +59,11 @@ def point_key(point: dict[str, Any]) -> tuple[str, float, float] | None:
     """(scenario, speed, depth) of a sweep point, rounded so float noise cannot hide a match."""
     if not {"scenario", "speed", "depth"} <= point.keys():
         return None
-    return (str(point["scenario"]), round(float(point["speed"]), 9), round(float(point["depth"]), 9))
+    return (
+        str(point["scenario"]),
+        round(float(point["speed"]), 9),
+        round(float(point["depth"]), 9),
+    )
 
 
 def _f32(a: Any) -> np.ndarray:
@@ -80,14 +84,20 @@ def from_arrays(
     """Build a :class:`StoreData` from arrays shaped like a field store's, checking shapes."""
     v, rho = _f32(velocity), _f32(density)
     if v.ndim != 5 or v.shape[-1] != 3:
-        raise DozerlabError(f"{source or 'store'}: velocity must be (time, Nx, Ny, Nz, 3), got {v.shape}")
+        raise DozerlabError(
+            f"{source or 'store'}: velocity must be (time, Nx, Ny, Nz, 3), got {v.shape}"
+        )
     if rho.shape != v.shape[:4]:
-        raise DozerlabError(f"{source or 'store'}: density {rho.shape} does not match velocity {v.shape[:4]}")
+        raise DozerlabError(
+            f"{source or 'store'}: density {rho.shape} does not match velocity {v.shape[:4]}"
+        )
     steps = v.shape[0]
     target = np.concatenate([_f32(force), _f32(torque)], axis=1)
     vb = _f32(blade_velocity)
     if target.shape != (steps, 6) or vb.shape != (steps, 3):
-        raise DozerlabError(f"{source or 'store'}: force/torque/blade_velocity must be ({steps}, 3)")
+        raise DozerlabError(
+            f"{source or 'store'}: force/torque/blade_velocity must be ({steps}, 3)"
+        )
     t = _f32(np.arange(steps) if time is None else time)
     return StoreData(v, rho, vb, np.ascontiguousarray(target), t, dict(point or {}), source)
 
@@ -100,13 +110,20 @@ def load_store(path: str | Path) -> StoreData:
     ds = open_store(path)  # checks the schema: a missing variable is a ValueError naming it
     point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
     return from_arrays(
-        read_field(path, "velocity"), read_field(path, "density"),
-        ds["blade_velocity"].values, ds["force"].values, ds["torque"].values,
-        time=ds["time"].values, point=point, source=str(path),
+        read_field(path, "velocity"),
+        read_field(path, "density"),
+        ds["blade_velocity"].values,
+        ds["force"].values,
+        ds["torque"].values,
+        time=ds["time"].values,
+        point=point,
+        source=str(path),
     )
 
 
-def check_grid(stores: list[StoreData], grid: tuple[int, int, int] | None = None) -> tuple[int, int, int]:
+def check_grid(
+    stores: list[StoreData], grid: tuple[int, int, int] | None = None
+) -> tuple[int, int, int]:
     """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch."""
     if not stores:
         raise ValueError("no field stores given (at least one is needed)")
@@ -145,8 +162,15 @@ class Samples:
 
     def subset(self, mask: np.ndarray) -> Samples:
         """The samples where ``mask`` holds (the arrays are shared, not copied)."""
-        return Samples(self.velocity, self.density, self.blade_velocity, self.target,
-                       self.index[mask], self.store_of[mask], self.history)
+        return Samples(
+            self.velocity,
+            self.density,
+            self.blade_velocity,
+            self.target,
+            self.index[mask],
+            self.store_of[mask],
+            self.history,
+        )
 
 
 def concat(stores: list[StoreData], history: int) -> Samples:
@@ -159,16 +183,27 @@ def concat(stores: list[StoreData], history: int) -> Samples:
     for k, s in enumerate(stores):
         steps = s.target.shape[0]
         if steps < history:
-            raise DozerlabError(f"{s.source or s.name}: {steps} steps is fewer than learn.history = {history}")
+            raise DozerlabError(
+                f"{s.source or s.name}: {steps} steps is fewer than learn.history = {history}"
+            )
         index.append(np.arange(start + history - 1, start + steps))
         store_of.append(np.full(steps - history + 1, k))
         start += steps
     cat = lambda name: np.ascontiguousarray(np.concatenate([getattr(s, name) for s in stores]))  # noqa: E731
-    return Samples(cat("velocity"), cat("density"), cat("blade_velocity"), cat("target"),
-                   np.concatenate(index), np.concatenate(store_of), history)
+    return Samples(
+        cat("velocity"),
+        cat("density"),
+        cat("blade_velocity"),
+        cat("target"),
+        np.concatenate(index),
+        np.concatenate(store_of),
+        history,
+    )
 
 
-def split_train_validation(samples: Samples, fraction: float, block: int = 0) -> tuple[Samples, Samples]:
+def split_train_validation(
+    samples: Samples, fraction: float, block: int = 0
+) -> tuple[Samples, Samples]:
     """Split each store's samples into training samples and ``fraction`` of them for early stopping.
 
     ``block > 0``: the validation samples are every k-th block of ``block`` consecutive samples
@@ -188,14 +223,14 @@ def split_train_validation(samples: Samples, fraction: float, block: int = 0) ->
         n = where.size
         if n < 2:
             raise DozerlabError(f"store {k} has {n} sample(s); at least 2 are needed to split")
-        if 0 < block and 4 * block <= n:
+        if block > 0 and 4 * block <= n:
             every = max(2, round(1.0 / fraction))
             val = (np.arange(n) // block) % every == every // 2
             after = np.zeros(n, dtype=bool)
             for end in np.flatnonzero(val[:-1] & ~val[1:]) + 1:
-                after[end:end + samples.history] = True
+                after[end : end + samples.history] = True
             is_val[where[val]] = True
             unused[where[after & ~val]] = True
         else:
-            is_val[where[-min(max(1, round(fraction * n)), n - 1):]] = True
+            is_val[where[-min(max(1, round(fraction * n)), n - 1) :]] = True
     return samples.subset(~is_val & ~unused), samples.subset(is_val)

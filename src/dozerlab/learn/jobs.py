@@ -18,15 +18,23 @@ from dozerlab.learn.validate import evaluate, html_section, load_groups, strip_s
 from dozerlab.runtime import atomic_output
 
 
-def _run(config: dict[str, Any] | None, name: str, **kwargs: Any) -> contextlib.AbstractContextManager[Any]:
+def _run(
+    config: dict[str, Any] | None, name: str, **kwargs: Any
+) -> contextlib.AbstractContextManager[Any]:
     cfg = (config or {}).get("mlflow", {})
     if not cfg.get("enabled", True):
         return contextlib.nullcontext(None)
     return tracking.tracked_run(name, experiment=cfg.get("experiment", "dozerlab"), **kwargs)
 
 
-def train_job(kind: str, train: list[str | Path], config: dict[str, Any], out: str | Path,
-              device: str | None = None, progress: bool = True) -> TrainResult:
+def train_job(
+    kind: str,
+    train: list[str | Path],
+    config: dict[str, Any],
+    out: str | Path,
+    device: str | None = None,
+    progress: bool = True,
+) -> TrainResult:
     """Train ``kind`` on the stores ``train``; save the MLflow model directory at ``out`` and
     log the run (params, per-epoch losses, final training metrics, loss plot, model)."""
     import mlflow
@@ -36,36 +44,66 @@ def train_job(kind: str, train: list[str | Path], config: dict[str, Any], out: s
         "train_points": [s.point for s in stores],
         "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
         "train_sources": [str(Path(p).resolve()) for p in train],
-        "learn": config["learn"], "seed": config.get("seed"),
+        "learn": config["learn"],
+        "seed": config.get("seed"),
     }
-    params = {"model": kind, "seed": config.get("seed"), "learn": config["learn"],
-              "train_stores": ",".join(str(p) for p in train)}
+    params = {
+        "model": kind,
+        "seed": config.get("seed"),
+        "learn": config["learn"],
+        "train_stores": ",".join(str(p) for p in train),
+    }
     with _run(config, f"train {kind}", rule="train", tags={"model": kind}, params=params) as run:
         log_epoch = None
         if run is not None:
+
             def log_epoch(epoch: int, tr: float, va: float) -> None:
                 mlflow.log_metrics({"train_loss": tr, "val_loss": va}, step=epoch)
-        result = train_model(kind, stores, config, device=device, on_epoch=log_epoch, progress=progress)
-        meta.update(train_loss=result.train_loss, val_loss=result.val_loss, best_epoch=result.best_epoch,
-                    samples=result.samples, seconds=result.seconds)
+
+        result = train_model(
+            kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
+        )
+        meta.update(
+            train_loss=result.train_loss,
+            val_loss=result.val_loss,
+            best_epoch=result.best_epoch,
+            samples=result.samples,
+            seconds=result.seconds,
+        )
         model = result.model.cpu()
-        example = {"velocity": stores[0].velocity, "density": stores[0].density,
-                   "blade_velocity": stores[0].blade_velocity}
+        example = {
+            "velocity": stores[0].velocity,
+            "density": stores[0].density,
+            "blade_velocity": stores[0].blade_velocity,
+        }
         with atomic_output(out) as tmp:
             pyfunc.save(model, meta, tmp, example)
         if run is not None:
             fit = evaluate(model, stores)["overall"]
-            mlflow.log_metrics({**flat(fit, "train"), "best_val_loss": min(result.val_loss),
-                                "best_epoch": result.best_epoch, "train_seconds": result.seconds})
+            mlflow.log_metrics(
+                {
+                    **flat(fit, "train"),
+                    "best_val_loss": min(result.val_loss),
+                    "best_epoch": result.best_epoch,
+                    "train_seconds": result.seconds,
+                }
+            )
             with tempfile.TemporaryDirectory() as d:
-                mlflow.log_artifact(str(loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", kind)))
+                mlflow.log_artifact(
+                    str(loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", kind))
+                )
             result.model_uri = pyfunc.log(model, meta, example).model_uri
     return result
 
 
-def validate_job(model_dir: str | Path, interpolation: list[str | Path], extrapolation: list[str | Path],
-                 out: str | Path, plots_dir: str | Path | None = None,
-                 config: dict[str, Any] | None = None) -> dict[str, Any]:
+def validate_job(
+    model_dir: str | Path,
+    interpolation: list[str | Path],
+    extrapolation: list[str | Path],
+    out: str | Path,
+    plots_dir: str | Path | None = None,
+    config: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
     named after ``out``), the HTML fragment next to the JSON, and an MLflow validate run."""
     import mlflow
@@ -74,9 +112,14 @@ def validate_job(model_dir: str | Path, interpolation: list[str | Path], extrapo
     out = Path(out)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
     groups = load_groups(interpolation, extrapolation)
-    params = {"model_dir": str(model_dir), "interpolation": ",".join(map(str, interpolation)),
-              "extrapolation": ",".join(map(str, extrapolation))}
-    with _run(config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params) as run:
+    params = {
+        "model_dir": str(model_dir),
+        "interpolation": ",".join(map(str, interpolation)),
+        "extrapolation": ",".join(map(str, extrapolation)),
+    }
+    with _run(
+        config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
+    ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
         with atomic_output(out) as tmp:
             tmp.write_text(json.dumps(result, indent=1))

@@ -66,8 +66,12 @@ class LinearHead(nn.Module):
         history = cond // 3
         chan, cond_par = channel_parity(history)
         if len(chan) != in_channels:
-            raise ValueError(f"linear: {in_channels} channels do not match a history of {history} steps")
-        self.register_buffer("y_coord", torch.linspace(-1.0, 1.0, grid[1]).view(1, 1, 1, -1, 1), persistent=False)
+            raise ValueError(
+                f"linear: {in_channels} channels do not match a history of {history} steps"
+            )
+        self.register_buffer(
+            "y_coord", torch.linspace(-1.0, 1.0, grid[1]).view(1, 1, 1, -1, 1), persistent=False
+        )
         self.register_buffer("chan_odd", torch.tensor(chan) < 0, persistent=False)
         self.register_buffer("cond_odd", torch.tensor(cond_par) < 0, persistent=False)
         self.register_buffer("target_odd", torch.tensor(TARGET_PARITY) < 0, persistent=False)
@@ -82,7 +86,9 @@ class LinearHead(nn.Module):
         odd = self.chan_odd[None, :, None, None]
         even_f = torch.where(odd, moment, total).flatten(1)
         odd_f = torch.where(odd, total, moment).flatten(1)
-        return torch.cat([even_f, c[:, ~self.cond_odd]], dim=1), torch.cat([odd_f, c[:, self.cond_odd]], dim=1)
+        return torch.cat([even_f, c[:, ~self.cond_odd]], dim=1), torch.cat(
+            [odd_f, c[:, self.cond_odd]], dim=1
+        )
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         even, odd = self.designs(x, c)
@@ -95,11 +101,16 @@ class LinearHead(nn.Module):
 class MLP(nn.Module):
     """Multilayer perceptron on the flattened channels plus the conditioning."""
 
-    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], hidden: int = 256) -> None:
+    def __init__(
+        self, in_channels: int, cond: int, grid: tuple[int, int, int], hidden: int = 256
+    ) -> None:
         super().__init__()
         d = in_channels * grid[0] * grid[1] * grid[2] + cond
         self.net = nn.Sequential(
-            nn.Linear(d, hidden), nn.GELU(), nn.Linear(hidden, hidden // 2), nn.GELU(),
+            nn.Linear(d, hidden),
+            nn.GELU(),
+            nn.Linear(hidden, hidden // 2),
+            nn.GELU(),
             nn.Linear(hidden // 2, OUTPUTS),
         )
 
@@ -117,14 +128,18 @@ class ThesisCNN(nn.Module):
     / max-pool 4, each then conv 8@2³), upsampled to the grid and added; conv 8@1³; FC 384;
     FC 192; output. The conditioning joins at the first fully connected layer."""
 
-    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 8) -> None:
+    def __init__(
+        self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 8
+    ) -> None:
         super().__init__()
         self.grid = tuple(grid)
         self.stem = _same2(in_channels, width)
         self.branches = nn.ModuleList(_same2(width, width) for _ in range(3))
         self.mix = nn.Conv3d(width, width, 1)
         d = width * grid[0] * grid[1] * grid[2] + cond
-        self.head = nn.Sequential(nn.Linear(d, 384), nn.ReLU(), nn.Linear(384, 192), nn.ReLU(), nn.Linear(192, OUTPUTS))
+        self.head = nn.Sequential(
+            nn.Linear(d, 384), nn.ReLU(), nn.Linear(384, 192), nn.ReLU(), nn.Linear(192, OUTPUTS)
+        )
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         h = F.relu(self.stem(x))
@@ -137,7 +152,10 @@ class ThesisCNN(nn.Module):
 
 
 def _block(cin: int, cout: int, k: int, stride: int = 1) -> nn.Sequential:
-    return nn.Sequential(nn.Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0), nn.GELU())
+    return nn.Sequential(
+        nn.Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0),
+        nn.GELU(),
+    )
 
 
 class ForceDensityUNet(nn.Module):
@@ -153,15 +171,21 @@ class ForceDensityUNet(nn.Module):
     each bin the context of the material around it, the skips keep the local detail.
     """
 
-    def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 16) -> None:
+    def __init__(
+        self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 16
+    ) -> None:
         super().__init__()
         self.grid = tuple(grid)
         axes = [torch.linspace(-1.0, 1.0, n) for n in grid]
-        self.register_buffer("coords", torch.stack(torch.meshgrid(*axes, indexing="ij")), persistent=False)
+        self.register_buffer(
+            "coords", torch.stack(torch.meshgrid(*axes, indexing="ij")), persistent=False
+        )
         cin = in_channels + cond + 3
         self.e0 = _block(cin, width, 1)
         self.e1 = nn.Sequential(_block(width, width, 2, stride=2), _block(width, width, 3))
-        self.e2 = nn.Sequential(_block(width, 2 * width, 2, stride=2), _block(2 * width, 2 * width, 3))
+        self.e2 = nn.Sequential(
+            _block(width, 2 * width, 2, stride=2), _block(2 * width, 2 * width, 3)
+        )
         self.d1 = _block(3 * width, width, 1)
         self.d0 = nn.Sequential(_block(2 * width, width, 1), nn.Conv3d(width, OUTPUTS, 1))
         self.cond_head = nn.Linear(cond, OUTPUTS)
@@ -187,7 +211,10 @@ class ForceDensityUNet(nn.Module):
 
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {
-    "linear": LinearHead, "mlp": MLP, "cnn": ThesisCNN, "unet": ForceDensityUNet,
+    "linear": LinearHead,
+    "mlp": MLP,
+    "cnn": ThesisCNN,
+    "unet": ForceDensityUNet,
 }
 
 
@@ -215,7 +242,9 @@ class ForceModel(nn.Module):
         return {"kind": self.kind, "grid": list(self.grid), "history": self.history}
 
     @staticmethod
-    def raw_features(velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def raw_features(
+        velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Unnormalised channels (B, n_channels(H), X, Y, Z) and conditioning (B, 3H).
 
         Channels: the H steps' own channels (oldest first), then the H − 1 changes."""
@@ -230,15 +259,23 @@ class ForceModel(nn.Module):
         ch = torch.cat([p.permute(0, 1, 5, 2, 3, 4).flatten(1, 2) for p in parts], dim=1)
         return ch.contiguous(), blade_velocity.reshape(b, -1)
 
-    def inputs(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def inputs(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalised backbone inputs."""
         x, c = self.raw_features(velocity, density, blade_velocity)
-        x = (x - self.chan_mean[None, :, None, None, None]) / self.chan_std[None, :, None, None, None]
+        x = (x - self.chan_mean[None, :, None, None, None]) / self.chan_std[
+            None, :, None, None, None
+        ]
         return x, (c - self.cond_mean) / self.cond_std
 
-    def normalized(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> torch.Tensor:
+    def normalized(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> torch.Tensor:
         """(B, 6) predictions in units of the training targets' standard deviation."""
         return self.backbone(*self.inputs(velocity, density, blade_velocity))
 
-    def forward(self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> torch.Tensor:
         return self.normalized(velocity, density, blade_velocity) * self.y_std + self.y_mean

@@ -26,7 +26,9 @@ def _save(plt, fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
     return path
 
 
-def loss_curves(train_loss: list[float], val_loss: list[float], path: str | Path, title: str = "") -> Path:
+def loss_curves(
+    train_loss: list[float], val_loss: list[float], path: str | Path, title: str = ""
+) -> Path:
     """Training and validation loss (normalised MSE) per epoch, log scale."""
     plt, fig, ax = _figure()
     ax = ax[0, 0]
@@ -38,7 +40,9 @@ def loss_curves(train_loss: list[float], val_loss: list[float], path: str | Path
     return _save(plt, fig, Path(path))
 
 
-def force_series(time: np.ndarray, pred: np.ndarray, true: np.ndarray, path: str | Path, title: str = "") -> Path:
+def force_series(
+    time: np.ndarray, pred: np.ndarray, true: np.ndarray, path: str | Path, title: str = ""
+) -> Path:
     """Predicted vs measured force components (N) over time (s) for one sweep point."""
     plt, fig, axes = _figure(3, width=4.2)
     for i, comp in enumerate("xyz"):
@@ -51,7 +55,9 @@ def force_series(time: np.ndarray, pred: np.ndarray, true: np.ndarray, path: str
     return _save(plt, fig, Path(path))
 
 
-def parity(groups: dict[str, tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = "") -> Path:
+def parity(
+    groups: dict[str, tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = ""
+) -> Path:
     """Predicted vs measured force x and z (N) for each group of held-out points."""
     plt, fig, axes = _figure(2, width=4.2, height=4.2)
     for ax, i, comp in ((axes[0, 0], 0, "x"), (axes[0, 1], 2, "z")):
@@ -59,10 +65,17 @@ def parity(groups: dict[str, tuple[np.ndarray, np.ndarray]], path: str | Path, t
         for name, (pred, true) in groups.items():
             if len(true):
                 ax.scatter(true[:, i], pred[:, i], s=4, alpha=0.5, label=name)
-                lo, hi = min(lo, true[:, i].min(), pred[:, i].min()), max(hi, true[:, i].max(), pred[:, i].max())
+                lo, hi = (
+                    min(lo, true[:, i].min(), pred[:, i].min()),
+                    max(hi, true[:, i].max(), pred[:, i].max()),
+                )
         if np.isfinite(lo):
             ax.plot([lo, hi], [lo, hi], "k--", lw=1)
-        ax.set(xlabel=f"measured force {comp} (N)", ylabel=f"predicted force {comp} (N)", aspect="equal")
+        ax.set(
+            xlabel=f"measured force {comp} (N)",
+            ylabel=f"predicted force {comp} (N)",
+            aspect="equal",
+        )
     axes[0, 0].legend()
     fig.suptitle(title)
     return _save(plt, fig, Path(path))

@@ -45,13 +45,18 @@ def with_history(arrays: dict[str, np.ndarray], history: int) -> tuple[torch.Ten
     """Per-step arrays (B, …) → tensors with a history axis (B, H, …) over consecutive rows."""
     b = arrays["density"].shape[0]
     rows = np.clip(np.arange(b)[:, None] + np.arange(1 - history, 1)[None, :], 0, None)
-    return tuple(torch.from_numpy(np.ascontiguousarray(arrays[k], dtype=np.float32)[rows]) for k in INPUT_NAMES)
+    return tuple(
+        torch.from_numpy(np.ascontiguousarray(arrays[k], dtype=np.float32)[rows])
+        for k in INPUT_NAMES
+    )
 
 
 def check_inputs(arrays: Any, grid: tuple[int, int, int]) -> dict[str, np.ndarray]:
     """The three input arrays, shape-checked against the model's grid."""
     if not isinstance(arrays, dict):
-        raise DozerlabError(f"model input must be a dict with keys {list(INPUT_NAMES)}, got {type(arrays).__name__}")
+        raise DozerlabError(
+            f"model input must be a dict with keys {list(INPUT_NAMES)}, got {type(arrays).__name__}"
+        )
     missing = [k for k in INPUT_NAMES if k not in arrays]
     if missing:
         raise DozerlabError(f"model input lacks {missing}; it needs {list(INPUT_NAMES)}")
@@ -68,13 +73,17 @@ def check_inputs(arrays: Any, grid: tuple[int, int, int]) -> dict[str, np.ndarra
 
 
 @torch.no_grad()
-def predict_arrays(model: ForceModel, arrays: dict[str, np.ndarray], batch: int = 256) -> np.ndarray:
+def predict_arrays(
+    model: ForceModel, arrays: dict[str, np.ndarray], batch: int = 256
+) -> np.ndarray:
     """(B, 6) float32 force (N) and torque (N·m) of per-step input arrays."""
     arrays = check_inputs(arrays, model.grid)
     v, rho, vb = with_history(arrays, model.history)
     dev = next(model.buffers()).device
-    out = [model(v[i:i + batch].to(dev), rho[i:i + batch].to(dev), vb[i:i + batch].to(dev)).cpu()
-           for i in range(0, v.shape[0], batch)]
+    out = [
+        model(v[i : i + batch].to(dev), rho[i : i + batch].to(dev), vb[i : i + batch].to(dev)).cpu()
+        for i in range(0, v.shape[0], batch)
+    ]
     return torch.cat(out).numpy() if out else np.zeros((0, 6), np.float32)
 
 
@@ -106,12 +115,16 @@ def signature(grid: tuple[int, int, int]) -> Any:
     from mlflow.types import ColSpec, Schema, TensorSpec
 
     f32 = np.dtype(np.float32)
-    inputs = Schema([
-        TensorSpec(f32, (-1, *grid, 3), "velocity"),
-        TensorSpec(f32, (-1, *grid), "density"),
-        TensorSpec(f32, (-1, 3), "blade_velocity"),
-    ])
-    return ModelSignature(inputs=inputs, outputs=Schema([ColSpec("float", c) for c in TARGET_NAMES]))
+    inputs = Schema(
+        [
+            TensorSpec(f32, (-1, *grid, 3), "velocity"),
+            TensorSpec(f32, (-1, *grid), "density"),
+            TensorSpec(f32, (-1, 3), "blade_velocity"),
+        ]
+    )
+    return ModelSignature(
+        inputs=inputs, outputs=Schema([ColSpec("float", c) for c in TARGET_NAMES])
+    )
 
 
 def _requirements() -> list[str]:
@@ -120,7 +133,9 @@ def _requirements() -> list[str]:
     return [f"{p}=={version(p)}" for p in ("mlflow", "torch", "numpy", "pandas", "dozerlab")]
 
 
-def model_kwargs(model: ForceModel, meta: dict[str, Any], workdir: Path, example: dict[str, np.ndarray]) -> dict[str, Any]:
+def model_kwargs(
+    model: ForceModel, meta: dict[str, Any], workdir: Path, example: dict[str, np.ndarray]
+) -> dict[str, Any]:
     """Arguments shared by ``mlflow.pyfunc.save_model`` and ``log_model`` (files go to ``workdir``)."""
     weights, meta_path = workdir / "weights.pt", workdir / "meta.json"
     torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, weights)
@@ -130,12 +145,16 @@ def model_kwargs(model: ForceModel, meta: dict[str, Any], workdir: Path, example
         "python_model": str(Path(__file__).with_name("pyfunc_entry.py")),
         "artifacts": {"weights": str(weights), "meta": str(meta_path)},
         "signature": signature(model.grid),
-        "input_example": {k: np.ascontiguousarray(example[k][:1], dtype=np.float32) for k in INPUT_NAMES},
+        "input_example": {
+            k: np.ascontiguousarray(example[k][:1], dtype=np.float32) for k in INPUT_NAMES
+        },
         "pip_requirements": _requirements(),
     }
 
 
-def save(model: ForceModel, meta: dict[str, Any], path: str | Path, example: dict[str, np.ndarray]) -> None:
+def save(
+    model: ForceModel, meta: dict[str, Any], path: str | Path, example: dict[str, np.ndarray]
+) -> None:
     """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist)."""
     with tempfile.TemporaryDirectory() as tmp:
         mlflow.pyfunc.save_model(path=str(path), **model_kwargs(model, meta, Path(tmp), example))
@@ -144,13 +163,17 @@ def save(model: ForceModel, meta: dict[str, Any], path: str | Path, example: dic
 def log(model: ForceModel, meta: dict[str, Any], example: dict[str, np.ndarray]) -> Any:
     """Log ``model`` to the active MLflow run as the model named ``model``."""
     with tempfile.TemporaryDirectory() as tmp:
-        return mlflow.pyfunc.log_model(name="model", **model_kwargs(model, meta, Path(tmp), example))
+        return mlflow.pyfunc.log_model(
+            name="model", **model_kwargs(model, meta, Path(tmp), example)
+        )
 
 
 def load(path: str | Path) -> tuple[ForceModel, dict[str, Any]]:
     """Load a saved model directory directly (no MLflow runtime): the model and its metadata."""
     art = Path(path) / "artifacts"
     if not (art / "meta.json").is_file() or not (art / "weights.pt").is_file():
-        raise FileNotFoundError(f"not a dozerlab model directory (no artifacts/meta.json, weights.pt): {path}")
+        raise FileNotFoundError(
+            f"not a dozerlab model directory (no artifacts/meta.json, weights.pt): {path}"
+        )
     meta = json.loads((art / "meta.json").read_text())
     return build(meta, art / "weights.pt"), meta

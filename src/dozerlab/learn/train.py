@@ -69,7 +69,10 @@ class Batches:
 
 
 def mirror_y(
-    velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor, target: torch.Tensor,
+    velocity: torch.Tensor,
+    density: torch.Tensor,
+    blade_velocity: torch.Tensor,
+    target: torch.Tensor,
     mask: torch.Tensor,
 ) -> None:
     """Reflect the samples where ``mask`` holds across the blade's centre plane, in place.
@@ -97,15 +100,23 @@ def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> No
     for v, rho, vb, y in train.chunks(chunk):
         x, c = model.raw_features(v, rho, vb)
         x, c, y = x.double(), c.double(), y.double()
-        for name, value in (("x", x.sum(dim=(0, 2, 3, 4))), ("x2", (x * x).sum(dim=(0, 2, 3, 4))),
-                            ("c", c.sum(0)), ("c2", (c * c).sum(0)), ("y", y.sum(0)), ("y2", (y * y).sum(0))):
+        for name, value in (
+            ("x", x.sum(dim=(0, 2, 3, 4))),
+            ("x2", (x * x).sum(dim=(0, 2, 3, 4))),
+            ("c", c.sum(0)),
+            ("c2", (c * c).sum(0)),
+            ("y", y.sum(0)),
+            ("y2", (y * y).sum(0)),
+        ):
             sums[name] = sums[name] + value if name in sums else value
         n_bins += x.shape[0] * x[0, 0].numel()
         n_cond += x.shape[0]
 
     chan_par, cond_par = channel_parity(model.history)
-    odd = {key: torch.tensor(par, device=sums["y"].device) < 0
-           for key, par in (("x", chan_par), ("c", cond_par), ("y", TARGET_PARITY))}
+    odd = {
+        key: torch.tensor(par, device=sums["y"].device) < 0
+        for key, par in (("x", chan_par), ("c", cond_par), ("y", TARGET_PARITY))
+    }
 
     def mean_std(name: str, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         mean = torch.where(odd[name], 0.0, sums[name] / n)
@@ -113,8 +124,11 @@ def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> No
         # A channel constant over the training points (no lateral blade motion, say) is centred only.
         return mean, torch.where(sd > 1e-6 * (sd.max() + 1e-30), sd, torch.ones_like(sd))
 
-    for key, buffers, n in (("x", ("chan_mean", "chan_std"), n_bins), ("c", ("cond_mean", "cond_std"), n_cond),
-                            ("y", ("y_mean", "y_std"), n_cond)):
+    for key, buffers, n in (
+        ("x", ("chan_mean", "chan_std"), n_bins),
+        ("c", ("cond_mean", "cond_std"), n_cond),
+        ("y", ("y_mean", "y_std"), n_cond),
+    ):
         for buffer, value in zip(buffers, mean_std(key, n), strict=True):
             getattr(model, buffer).copy_(value)
 
@@ -197,7 +211,9 @@ def train_model(
     torch.manual_seed(seed)
     dev = device_for(device)
     samples = concat(stores, learn["history"])
-    train_s, val_s = split_train_validation(samples, learn["validation_fraction"], learn["validation_block"])
+    train_s, val_s = split_train_validation(
+        samples, learn["validation_fraction"], learn["validation_block"]
+    )
     train, val = Batches(train_s, dev), Batches(val_s, dev)
     model = ForceModel(kind, stores[0].grid, learn["history"]).to(dev)
     fit_normalization(model, train)
@@ -217,24 +233,38 @@ def train_model(
 
 
 def _fit_gradient(
-    model: ForceModel, train: Batches, val: Batches, learn: dict[str, Any], seed: int,
-    result: TrainResult, on_epoch: EpochCallback | None, progress: bool,
+    model: ForceModel,
+    train: Batches,
+    val: Batches,
+    learn: dict[str, Any],
+    seed: int,
+    result: TrainResult,
+    on_epoch: EpochCallback | None,
+    progress: bool,
 ) -> None:
-    opt = torch.optim.Adam(model.parameters(), lr=learn["learning_rate"], weight_decay=learn["weight_decay"])
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=max(1, learn["patience"] // 3))
+    opt = torch.optim.Adam(
+        model.parameters(), lr=learn["learning_rate"], weight_decay=learn["weight_decay"]
+    )
+    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+        opt, factor=0.5, patience=max(1, learn["patience"] // 3)
+    )
     gen = np.random.default_rng(seed)
     best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
-    bar = tqdm(range(learn["epochs"]), desc=f"train {model.kind}", unit="epoch", disable=not progress)
+    bar = tqdm(
+        range(learn["epochs"]), desc=f"train {model.kind}", unit="epoch", disable=not progress
+    )
     for epoch in bar:
         model.train()
         order, total, count = gen.permutation(len(train)), 0.0, 0
         for start in range(0, len(order), learn["batch_size"]):
             t_data = time.perf_counter()
-            v, rho, vb, y = train.get(order[start:start + learn["batch_size"]])
+            v, rho, vb, y = train.get(order[start : start + learn["batch_size"]])
             if learn["mirror"]:
                 mirror_y(v, rho, vb, y, torch.from_numpy(gen.random(y.shape[0]) < 0.5).to(y.device))
             result.data_seconds += time.perf_counter() - t_data
-            loss = torch.nn.functional.mse_loss(model.normalized(v, rho, vb), (y - model.y_mean) / model.y_std)
+            loss = torch.nn.functional.mse_loss(
+                model.normalized(v, rho, vb), (y - model.y_mean) / model.y_std
+            )
             value = float(loss.detach())
             _guard(value, f"the training loss at epoch {epoch}")
             opt.zero_grad(set_to_none=True)
@@ -250,7 +280,12 @@ def _fit_gradient(
         if on_epoch:
             on_epoch(epoch, total / count, val_loss)
         if val_loss < best:
-            best, best_state, waited, result.best_epoch = val_loss, copy.deepcopy(model.state_dict()), 0, epoch
+            best, best_state, waited, result.best_epoch = (
+                val_loss,
+                copy.deepcopy(model.state_dict()),
+                0,
+                epoch,
+            )
         else:
             waited += 1
             if waited >= learn["patience"]:

@@ -23,8 +23,14 @@ GROUPS = ("interpolation", "extrapolation")
 
 def predict_store(model: ForceModel, store: StoreData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Time (s), predicted and measured (T', 6) force/torque of the steps with a full history."""
-    pred = predict_arrays(model, {"velocity": store.velocity, "density": store.density,
-                                  "blade_velocity": store.blade_velocity})
+    pred = predict_arrays(
+        model,
+        {
+            "velocity": store.velocity,
+            "density": store.density,
+            "blade_velocity": store.blade_velocity,
+        },
+    )
     k = model.history - 1
     return store.time[k:], pred[k:], store.target[k:]
 
@@ -35,7 +41,9 @@ def check_no_leak(meta: dict[str, Any], stores: list[StoreData]) -> None:
     sources = {str(Path(s).resolve()) for s in meta.get("train_sources", [])}
     for s in stores:
         key = point_key(s.point)
-        if (key is not None and key in trained) or (s.source and str(Path(s.source).resolve()) in sources):
+        if (key is not None and key in trained) or (
+            s.source and str(Path(s.source).resolve()) in sources
+        ):
             raise DozerlabError(
                 f"held-out store {s.source or s.name} is the sweep point {s.name}, which the model was "
                 "trained on; held-out points must not be training points"
@@ -48,8 +56,16 @@ def evaluate(model: ForceModel, stores: list[StoreData]) -> dict[str, Any]:
     points, preds, trues = [], [], []
     for s in stores:
         t, pred, true = predict_store(model, s)
-        points.append({"name": s.name, "point": s.point, "store": s.source, "steps": int(len(t)),
-                       "metrics": component_metrics(pred, true), "_series": (t, pred, true)})
+        points.append(
+            {
+                "name": s.name,
+                "point": s.point,
+                "store": s.source,
+                "steps": len(t),
+                "metrics": component_metrics(pred, true),
+                "_series": (t, pred, true),
+            }
+        )
         preds.append(pred)
         trues.append(true)
     overall = component_metrics(np.concatenate(preds), np.concatenate(trues))
@@ -93,29 +109,49 @@ def validate(
     result: dict[str, Any] = {
         "model": model.kind,
         "trained_on": meta.get("train_points", []),
-        "overall": component_metrics(np.concatenate([p["_series"][1] for p in allpts]),
-                                     np.concatenate([p["_series"][2] for p in allpts])),
-        "groups": {g: {"overall": v["overall"], "points": strip_series(v["points"])} for g, v in groups.items()},
+        "overall": component_metrics(
+            np.concatenate([p["_series"][1] for p in allpts]),
+            np.concatenate([p["_series"][2] for p in allpts]),
+        ),
+        "groups": {
+            g: {"overall": v["overall"], "points": strip_series(v["points"])}
+            for g, v in groups.items()
+        },
         "summary": summary_line(model.kind, groups),
         "plots": {},
     }
     if plots_dir is not None:
-        result["plots"] = _make_plots(model.kind, meta, groups, Path(plots_dir), Path(json_dir or plots_dir))
+        result["plots"] = _make_plots(
+            model.kind, meta, groups, Path(plots_dir), Path(json_dir or plots_dir)
+        )
     return result
 
 
-def _make_plots(kind: str, meta: dict[str, Any], groups: dict[str, Any], pdir: Path, base: Path) -> dict[str, Any]:
+def _make_plots(
+    kind: str, meta: dict[str, Any], groups: dict[str, Any], pdir: Path, base: Path
+) -> dict[str, Any]:
     rel = lambda p: os.path.relpath(p, base)  # noqa: E731
     out: dict[str, Any] = {"series": {}}
     if meta.get("train_loss"):
-        out["loss"] = rel(plots.loss_curves(meta["train_loss"], meta["val_loss"], pdir / "loss.png", f"{kind}: loss"))
-    pairs = {g: (np.concatenate([p["_series"][1] for p in v["points"]]),
-                 np.concatenate([p["_series"][2] for p in v["points"]])) for g, v in groups.items()}
+        out["loss"] = rel(
+            plots.loss_curves(
+                meta["train_loss"], meta["val_loss"], pdir / "loss.png", f"{kind}: loss"
+            )
+        )
+    pairs = {
+        g: (
+            np.concatenate([p["_series"][1] for p in v["points"]]),
+            np.concatenate([p["_series"][2] for p in v["points"]]),
+        )
+        for g, v in groups.items()
+    }
     out["parity"] = rel(plots.parity(pairs, pdir / "parity.png", f"{kind}: held-out points"))
     for g, v in groups.items():
         for i, p in enumerate(v["points"]):
             t, pred, true = p["_series"]
-            path = plots.force_series(t, pred, true, pdir / f"{g}_{i:02d}.png", f"{kind}, {g}: {p['name']}")
+            path = plots.force_series(
+                t, pred, true, pdir / f"{g}_{i:02d}.png", f"{kind}, {g}: {p['name']}"
+            )
             out["series"][f"{g}: {p['name']}"] = rel(path)
     return out
 
@@ -131,15 +167,25 @@ def html_section(validation_json: str | Path, html_dir: str | Path | None = None
     esc = html.escape
     rows = []
     for g, data in result["groups"].items():
-        for label, m in [(f"<b>{esc(g)}: all</b>", data["overall"])] + [(esc(p["name"]), p["metrics"]) for p in data["points"]]:
+        for label, m in [(f"<b>{esc(g)}: all</b>", data["overall"])] + [
+            (esc(p["name"]), p["metrics"]) for p in data["points"]
+        ]:
             cells = "".join(
                 f"<td>{100 * m[c]['rel_rmse']:.1f} %</td><td>{m[c]['r2']:.3f}</td>"
                 for c in ("force_x", "force_z", "torque_y")
             )
             rows.append(f"<tr><td>{esc(g)}</td><td>{label}</td>{cells}</tr>")
-    head = "".join(f"<th>{c} rel. RMSE</th><th>{c} R²</th>" for c in ("force_x", "force_z", "torque_y"))
-    imgs = [result["plots"].get("loss"), result["plots"].get("parity"), *result["plots"].get("series", {}).values()]
-    figures = "".join(f'<img src="{link(p)}" alt="{esc(Path(p).stem)}" style="max-width:48%">' for p in imgs if p)
+    head = "".join(
+        f"<th>{c} rel. RMSE</th><th>{c} R²</th>" for c in ("force_x", "force_z", "torque_y")
+    )
+    imgs = [
+        result["plots"].get("loss"),
+        result["plots"].get("parity"),
+        *result["plots"].get("series", {}).values(),
+    ]
+    figures = "".join(
+        f'<img src="{link(p)}" alt="{esc(Path(p).stem)}" style="max-width:48%">' for p in imgs if p
+    )
     return (
         f'<section class="validation" id="validation-{esc(result["model"])}">'
         f"<h3>Model {esc(result['model'])} on held-out sweep points</h3>"
@@ -149,7 +195,11 @@ def html_section(validation_json: str | Path, html_dir: str | Path | None = None
     )
 
 
-def load_groups(interpolation: list[str | Path], extrapolation: list[str | Path]) -> dict[str, list[StoreData]]:
+def load_groups(
+    interpolation: list[str | Path], extrapolation: list[str | Path]
+) -> dict[str, list[StoreData]]:
     """Load held-out stores by group."""
-    return {"interpolation": [load_store(p) for p in interpolation],
-            "extrapolation": [load_store(p) for p in extrapolation]}
+    return {
+        "interpolation": [load_store(p) for p in interpolation],
+        "extrapolation": [load_store(p) for p in extrapolation],
+    }

@@ -33,11 +33,14 @@ def nonnegative(name: str, value: float) -> float:
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (B, 3, 3) whose columns are the local axes, from quaternions (B, 4)."""
     w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2).reshape(-1, 3, 3)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    ).reshape(-1, 3, 3)
 
 
 class Bodies:
@@ -60,10 +63,27 @@ class Bodies:
     def __len__(self) -> int:
         return int(self.kind.shape[0])
 
-    def _append(self, kind: int, center: np.ndarray, quat: np.ndarray, half: np.ndarray,
-                normal: np.ndarray, mu: float, kinematic: bool) -> int:
-        row = dict(kind=kind, center=center, quat=quat, half=half, normal=normal,
-                   vel=np.zeros(3), ang=np.zeros(3), mu=mu, kinematic=kinematic)
+    def _append(
+        self,
+        kind: int,
+        center: np.ndarray,
+        quat: np.ndarray,
+        half: np.ndarray,
+        normal: np.ndarray,
+        mu: float,
+        kinematic: bool,
+    ) -> int:
+        row = {
+            "kind": kind,
+            "center": center,
+            "quat": quat,
+            "half": half,
+            "normal": normal,
+            "vel": np.zeros(3),
+            "ang": np.zeros(3),
+            "mu": mu,
+            "kinematic": kinematic,
+        }
         for name in FIELDS:
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.asarray(row[name], old.dtype)[None]]))
@@ -78,11 +98,24 @@ class Bodies:
         norm = np.linalg.norm(n)
         if norm == 0.0:
             raise ValueError("normal must be a non-zero vector")
-        return self._append(PLANE, vec3("point", point), np.array([1.0, 0, 0, 0]), np.zeros(3),
-                            n / norm, nonnegative("friction", friction), False)
+        return self._append(
+            PLANE,
+            vec3("point", point),
+            np.array([1.0, 0, 0, 0]),
+            np.zeros(3),
+            n / norm,
+            nonnegative("friction", friction),
+            False,
+        )
 
-    def add_box(self, center: object, half_extents: object, kinematic: bool, friction: float,
-                orientation: object | None) -> int:
+    def add_box(
+        self,
+        center: object,
+        half_extents: object,
+        kinematic: bool,
+        friction: float,
+        orientation: object | None,
+    ) -> int:
         """A box; ``orientation`` is a quaternion (w, x, y, z), identity when None."""
         half = vec3("half_extents", half_extents)
         if np.any(half <= 0.0):
@@ -90,9 +123,17 @@ class Bodies:
         q = np.array([1.0, 0, 0, 0]) if orientation is None else np.asarray(orientation, float)
         if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0.0:
             raise ValueError(
-                f"orientation must be a non-zero quaternion (w, x, y, z), got {orientation!r}")
-        return self._append(BOX, vec3("center", center), q / np.linalg.norm(q), half,
-                            np.zeros(3), nonnegative("friction", friction), bool(kinematic))
+                f"orientation must be a non-zero quaternion (w, x, y, z), got {orientation!r}"
+            )
+        return self._append(
+            BOX,
+            vec3("center", center),
+            q / np.linalg.norm(q),
+            half,
+            np.zeros(3),
+            nonnegative("friction", friction),
+            bool(kinematic),
+        )
 
     def check(self, body: int) -> int:
         """``body`` as a valid body index, or a ValueError."""
@@ -117,11 +158,17 @@ class Bodies:
         for b in np.flatnonzero(self.kinematic):
             self.center[b] += h * self.vel[b]
             w, q = self.ang[b], self.quat[b]
-            dq = 0.5 * h * np.array([
-                -w[0] * q[1] - w[1] * q[2] - w[2] * q[3],
-                w[0] * q[0] + w[1] * q[3] - w[2] * q[2],
-                -w[0] * q[3] + w[1] * q[0] + w[2] * q[1],
-                w[0] * q[2] - w[1] * q[1] + w[2] * q[0],
-            ])
+            dq = (
+                0.5
+                * h
+                * np.array(
+                    [
+                        -w[0] * q[1] - w[1] * q[2] - w[2] * q[3],
+                        w[0] * q[0] + w[1] * q[3] - w[2] * q[2],
+                        -w[0] * q[3] + w[1] * q[0] + w[2] * q[1],
+                        w[0] * q[2] - w[1] * q[1] + w[2] * q[0],
+                    ]
+                )
+            )
             q = q + dq
             self.quat[b] = q / np.linalg.norm(q)

@@ -111,8 +111,12 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out
 
 @njit(parallel=True, cache=True)
 def sphere_pairs(
-    pos: np.ndarray, radii: np.ndarray, reach: np.ndarray, cells: np.ndarray,
-    start: np.ndarray, dims: np.ndarray,
+    pos: np.ndarray,
+    radii: np.ndarray,
+    reach: np.ndarray,
+    cells: np.ndarray,
+    start: np.ndarray,
+    dims: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All sphere pairs closer than ``reach_i + reach_j`` (reach ≥ radius, m) in sorted slots.
 
@@ -157,4 +161,3 @@ def slab_partition(start: np.ndarray, dims: np.ndarray, n_slabs: int) -> np.ndar
     # Strictly consecutive slab numbers keep "neighbouring slabs" meaning adjacent columns.
     _, slab = np.unique(slab, return_inverse=True)
     return slab.astype(np.int64)
-

@@ -58,10 +58,12 @@ def _body_test(x, r, margin, kind, c, rot, ext, nrm):
             l1, g = (1.0 if p1 >= 0.0 else -1.0), r + e1
         else:
             l2, g = (1.0 if p2 >= 0.0 else -1.0), r + e2
-    return (g,
-            rot[0, 0] * l0 + rot[0, 1] * l1 + rot[0, 2] * l2,
-            rot[1, 0] * l0 + rot[1, 1] * l1 + rot[1, 2] * l2,
-            rot[2, 0] * l0 + rot[2, 1] * l1 + rot[2, 2] * l2)
+    return (
+        g,
+        rot[0, 0] * l0 + rot[0, 1] * l1 + rot[0, 2] * l2,
+        rot[1, 0] * l0 + rot[1, 1] * l1 + rot[1, 2] * l2,
+        rot[2, 0] * l0 + rot[2, 1] * l1 + rot[2, 2] * l2,
+    )
 
 
 @njit(cache=True)
@@ -76,8 +78,9 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     for i in range(n):
         c = 0
         for b in range(nb):
-            g, _, _, _ = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b],
-                                    bext[b], bnormal[b])
+            g, _, _, _ = _body_test(
+                pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+            )
             if g > -margin[i]:
                 c += 1
         counts[i + 1] = c
@@ -90,8 +93,9 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     for i in range(n):
         k = off[i]
         for b in range(nb):
-            g, n0, n1, n2 = _body_test(pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b],
-                                       bext[b], bnormal[b])
+            g, n0, n1, n2 = _body_test(
+                pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+            )
             if g > -margin[i]:
                 si[k] = i
                 sb[k] = b
@@ -103,10 +107,30 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
 
 @njit(cache=True)
 def assemble(
-    pi, pj, pn, pg, bi, bb, bn, bg, slab, n_slabs,
-    pos, vel, radii, invm, invI, mu, mur,
-    bpos, bvel, bang, bmu,
-    h, upsilon, estar,
+    pi,
+    pj,
+    pn,
+    pg,
+    bi,
+    bb,
+    bn,
+    bg,
+    slab,
+    n_slabs,
+    pos,
+    vel,
+    radii,
+    invm,
+    invI,
+    mu,
+    mur,
+    bpos,
+    bvel,
+    bang,
+    bmu,
+    h,
+    upsilon,
+    estar,
 ):
     """Order the contacts for the partitioned sweep and compute their row constants.
 

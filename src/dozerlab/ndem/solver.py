@@ -54,8 +54,15 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     vj1 -= dn * imj * n1
     vj2 -= dn * imj * n2
     res = dn / c[KN]
-    if ln_new == 0.0 and lam[k, 1] == 0.0 and lam[k, 2] == 0.0 and lam[k, 3] == 0.0 \
-            and lam[k, 4] == 0.0 and lam[k, 5] == 0.0 and lam[k, 6] == 0.0:
+    if (
+        ln_new == 0.0
+        and lam[k, 1] == 0.0
+        and lam[k, 2] == 0.0
+        and lam[k, 3] == 0.0
+        and lam[k, 4] == 0.0
+        and lam[k, 5] == 0.0
+        and lam[k, 6] == 0.0
+    ):
         # Separating or speculative and unloaded: the friction and rolling discs are points.
         if dn != 0.0:
             v[i, 0], v[i, 1], v[i, 2] = vi0, vi1, vi2
@@ -160,7 +167,7 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
         v[i, a] += invm[i] * p
         if j >= 0:
             v[j, a] -= invm[j] * p
-    n = cd[k, N0:N0 + 3]
+    n = cd[k, N0 : N0 + 3]
     x = np.cross(n, lam[k, 1:4])
     for a in range(3):
         w[i, a] += invI[i] * (lam[k, 4 + a] - cd[k, RI] * x[a])

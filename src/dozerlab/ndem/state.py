@@ -11,9 +11,23 @@ from dozerlab.ndem.world import SPHERE_FIELDS, World
 from dozerlab.runtime import DozerlabError, atomic_output
 
 FORMAT_VERSION = 1
-PARAMETERS = ("dt", "iterations", "damping_steps", "youngs_modulus", "poisson_ratio",
-              "max_overlap", "density", "friction", "rolling_resistance", "wall_friction",
-              "contact_margin", "slabs", "warm_start", "time", "step_count")
+PARAMETERS = (
+    "dt",
+    "iterations",
+    "damping_steps",
+    "youngs_modulus",
+    "poisson_ratio",
+    "max_overlap",
+    "density",
+    "friction",
+    "rolling_resistance",
+    "wall_friction",
+    "contact_margin",
+    "slabs",
+    "warm_start",
+    "time",
+    "step_count",
+)
 
 
 def save_world(world: World, path: str | Path) -> None:
@@ -23,9 +37,13 @@ def save_world(world: World, path: str | Path) -> None:
     arrays["param_gravity"] = world.gravity
     arrays |= {f"sphere{f}": getattr(world, f) for f in SPHERE_FIELDS}
     arrays |= {f"body_{f}": getattr(world.bodies, f) for f in BODY_FIELDS}
-    arrays |= {"body_force": world.bodies.force, "body_torque": world.bodies.torque,
-               "warm_start": world._warm.start, "warm_hi": world._warm.hi,
-               "warm_lam": world._warm.lam}
+    arrays |= {
+        "body_force": world.bodies.force,
+        "body_torque": world.bodies.torque,
+        "warm_start": world._warm.start,
+        "warm_hi": world._warm.hi,
+        "warm_lam": world._warm.lam,
+    }
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
@@ -35,10 +53,13 @@ def load_world(path: str | Path) -> World:
     with np.load(path, allow_pickle=False) as f:
         if "format_version" not in f or int(f["format_version"]) != FORMAT_VERSION:
             raise DozerlabError(
-                f"{path} is not a dozerlab.ndem World file (format {FORMAT_VERSION})")
+                f"{path} is not a dozerlab.ndem World file (format {FORMAT_VERSION})"
+            )
         p = {name: f[f"param_{name}"].item() for name in PARAMETERS}
-        world = World(**{k: v for k, v in p.items() if k not in ("time", "step_count")},
-                      gravity=tuple(f["param_gravity"]))
+        world = World(
+            **{k: v for k, v in p.items() if k not in ("time", "step_count")},
+            gravity=tuple(f["param_gravity"]),
+        )
         world.time, world.step_count = float(p["time"]), int(p["step_count"])
         for name in SPHERE_FIELDS:
             setattr(world, name, np.ascontiguousarray(f[f"sphere{name}"]))

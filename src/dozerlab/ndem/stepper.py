@@ -21,8 +21,9 @@ PARALLEL_MIN_CONTACTS = 4096
 def _sort(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-sort the spheres by grid cell; returns the cell of each slot, cell offsets and dims."""
     reach = _reach(world)
-    lo, cell, dims = broadphase.grid_layout(world._x, float(reach.max()),
-                                            max(8 * world.n_spheres, 4096))
+    lo, cell, dims = broadphase.grid_layout(
+        world._x, float(reach.max()), max(8 * world.n_spheres, 4096)
+    )
     cells = broadphase.cell_indices(world._x, lo, cell, dims)
     perm, start = broadphase.counting_sort(cells, int(np.prod(dims)))
     for f in SORTED_FIELDS:
@@ -39,7 +40,9 @@ def _reach(world: World) -> np.ndarray:
     h = world.dt
     speed = np.sqrt(((world._v + h * world.gravity) ** 2).sum(axis=1))
     rmax = float(world._r.max())
-    return world._r + 0.5 * world.contact_margin * float(world._r.min()) + np.minimum(h * speed, rmax)
+    return (
+        world._r + 0.5 * world.contact_margin * float(world._r.min()) + np.minimum(h * speed, rmax)
+    )
 
 
 def advance(world: World) -> StepStats:
@@ -66,35 +69,77 @@ def advance(world: World) -> StepStats:
     pi, pj, pn, pg = broadphase.sphere_pairs(world._x, world._r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     bi, bb, bn, bg = contacts.body_contacts(
-        world._x, world._r, 2.0 * (reach - world._r) + world.dt * body_speed, bodies.kind,
-        bodies.center, bodies.rotations(), bodies.half, bodies.normal)
+        world._x,
+        world._r,
+        2.0 * (reach - world._r) + world.dt * body_speed,
+        bodies.kind,
+        bodies.center,
+        bodies.rotations(),
+        bodies.half,
+        bodies.normal,
+    )
     invm = 1.0 / world._m
     invI = 1.0 / (0.4 * world._m * world._r**2)
     nu = world.poisson_ratio
     estar = world.youngs_modulus / (2.0 * (1.0 - nu * nu))
     upsilon = 1.0 / (1.0 + 4.0 * world.damping_steps)
     ci, cj, cd, gap, gstart = contacts.assemble(
-        pi, pj, pn, pg, bi, bb, bn, bg, slab, n_slabs,
-        world._x, world._v, world._r, invm, invI, world._mu, world._mur,
-        bodies.center, bodies.vel, bodies.ang, bodies.mu, h, upsilon, estar)
+        pi,
+        pj,
+        pn,
+        pg,
+        bi,
+        bb,
+        bn,
+        bg,
+        slab,
+        n_slabs,
+        world._x,
+        world._v,
+        world._r,
+        invm,
+        invI,
+        world._mu,
+        world._mur,
+        bodies.center,
+        bodies.vel,
+        bodies.ang,
+        bodies.mu,
+        h,
+        upsilon,
+        estar,
+    )
     frac = _check_overlap(world, ci, cj, gap)
 
     world._v += h * world.gravity
     if world.warm_start:
-        lam = world._warm.lookup(world._id, ci, cj, cd[:, contacts.N0:contacts.N0 + 3])
+        lam = world._warm.lookup(world._id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
     else:
         lam = np.zeros((ci.shape[0], 7))
     threads = numba.get_num_threads()
     if ci.shape[0] < PARALLEL_MIN_CONTACTS:
         numba.set_num_threads(1)
     try:
-        residual = solver.pgs(ci, cj, cd, lam, world._v, world._w, invm, invI, gstart, n_slabs,
-                              world.iterations, world.warm_start)
+        residual = solver.pgs(
+            ci,
+            cj,
+            cd,
+            lam,
+            world._v,
+            world._w,
+            invm,
+            invI,
+            gstart,
+            n_slabs,
+            world.iterations,
+            world.warm_start,
+        )
     finally:
         numba.set_num_threads(threads)
     world._warm.store(world._id, ci, cj, lam)
-    bodies.force, bodies.torque = contacts.body_loads(ci, cj, cd, lam, world._x, bodies.center,
-                                                      nb, h)
+    bodies.force, bodies.torque = contacts.body_loads(
+        ci, cj, cd, lam, world._x, bodies.center, nb, h
+    )
     if solver.integrate(world._x, world._v, world._w, h):
         _raise_non_finite(world, "after")
     bodies.integrate(h)
@@ -102,9 +147,13 @@ def advance(world: World) -> StepStats:
     world.step_count += 1
     touching = gap > 0.0
     return StepStats(
-        step=world.step_count, time=world.time, contacts=int(touching.sum()),
-        speculative=int((~touching).sum()), residual=float(residual),
-        max_overlap=float(gap.max(initial=0.0)), max_overlap_fraction=float(frac.max(initial=0.0)),
+        step=world.step_count,
+        time=world.time,
+        contacts=int(touching.sum()),
+        speculative=int((~touching).sum()),
+        residual=float(residual),
+        max_overlap=float(gap.max(initial=0.0)),
+        max_overlap_fraction=float(frac.max(initial=0.0)),
     )
 
 
@@ -115,15 +164,17 @@ def _check_overlap(world: World, ci: np.ndarray, cj: np.ndarray, gap: np.ndarray
     if frac.size == 0 or frac.max() <= world.max_overlap:
         return frac
     k = int(frac.argmax())
-    other = (f"sphere {world._id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}")
+    other = f"sphere {world._id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}"
     raise DivergenceError(
         f"overlap {gap[k]:.4g} m = {frac[k]:.3g} of the smaller radius between sphere "
         f"{world._id[ci[k]]} and {other} exceeds max_overlap = {world.max_overlap} at step "
-        f"{world.step_count + 1} (t = {world.time:.6g} s)")
+        f"{world.step_count + 1} (t = {world.time:.6g} s)"
+    )
 
 
 def _raise_non_finite(world: World, when: str) -> None:
     bad = world._id[~np.all(np.isfinite(np.hstack([world._x, world._v, world._w])), axis=1)]
     raise DivergenceError(
         f"non-finite sphere state (NaN or inf) {when} step {world.step_count + 1} "
-        f"(t = {world.time:.6g} s): {bad.size} spheres, ids {np.sort(bad)[:10].tolist()}")
+        f"(t = {world.time:.6g} s): {bad.size} spheres, ids {np.sort(bad)[:10].tolist()}"
+    )

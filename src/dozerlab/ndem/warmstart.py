@@ -81,8 +81,9 @@ class WarmStart:
         self.hi = np.zeros(0, dtype=np.int64)
         self.lam = np.zeros((0, 7))
 
-    def lookup(self, ids: np.ndarray, ci: np.ndarray, cj: np.ndarray,
-               normals: np.ndarray) -> np.ndarray:
+    def lookup(
+        self, ids: np.ndarray, ci: np.ndarray, cj: np.ndarray, normals: np.ndarray
+    ) -> np.ndarray:
         """Initial multipliers (Nc, 7) for this step's contacts (zero for new contacts).
 
         The friction and rolling vectors are projected onto the new tangent planes.

@@ -42,12 +42,22 @@ class World:
     """
 
     def __init__(
-        self, dt: float = 0.01, iterations: int = 50,
-        gravity: tuple[float, float, float] = (0.0, 0.0, -9.81), *,
-        damping_steps: float = 3.0, youngs_modulus: float = 1.0e8, poisson_ratio: float = 0.3,
-        max_overlap: float = 0.5, density: float = 2600.0, friction: float = 0.5,
-        rolling_resistance: float = 0.1, wall_friction: float = 0.5,
-        contact_margin: float = 0.02, slabs: int = 16, warm_start: bool = True,
+        self,
+        dt: float = 0.01,
+        iterations: int = 50,
+        gravity: tuple[float, float, float] = (0.0, 0.0, -9.81),
+        *,
+        damping_steps: float = 3.0,
+        youngs_modulus: float = 1.0e8,
+        poisson_ratio: float = 0.3,
+        max_overlap: float = 0.5,
+        density: float = 2600.0,
+        friction: float = 0.5,
+        rolling_resistance: float = 0.1,
+        wall_friction: float = 0.5,
+        contact_margin: float = 0.02,
+        slabs: int = 16,
+        warm_start: bool = True,
     ) -> None:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be > 0 s, got {dt!r}")
@@ -95,11 +105,15 @@ class World:
         """A World from a validated config's ``solver`` and ``material`` sections."""
         s, m = config.get("solver", {}), config.get("material", {})
         return cls(
-            dt=s.get("dt", 0.01), iterations=s.get("iterations", 50),
+            dt=s.get("dt", 0.01),
+            iterations=s.get("iterations", 50),
             gravity=tuple(s.get("gravity", (0.0, 0.0, -9.81))),
-            damping_steps=s.get("damping_steps", 3.0), max_overlap=s.get("max_overlap", 0.5),
-            density=m.get("density", 2600.0), youngs_modulus=m.get("youngs_modulus", 1.0e8),
-            poisson_ratio=m.get("poisson_ratio", 0.3), friction=m.get("friction", 0.5),
+            damping_steps=s.get("damping_steps", 3.0),
+            max_overlap=s.get("max_overlap", 0.5),
+            density=m.get("density", 2600.0),
+            youngs_modulus=m.get("youngs_modulus", 1.0e8),
+            poisson_ratio=m.get("poisson_ratio", 0.3),
+            friction=m.get("friction", 0.5),
             rolling_resistance=m.get("rolling_resistance", 0.1),
             wall_friction=m.get("wall_friction", 0.5),
         )
@@ -118,9 +132,14 @@ class World:
     # ---- spheres -------------------------------------------------------------------------
 
     def add_spheres(
-        self, positions: object, radius: float | np.ndarray = 0.02, density: float | None = None,
-        friction: float | None = None, rolling_resistance: float | None = None,
-        velocities: object | None = None, angular_velocities: object | None = None,
+        self,
+        positions: object,
+        radius: float | np.ndarray = 0.02,
+        density: float | None = None,
+        friction: float | None = None,
+        rolling_resistance: float | None = None,
+        velocities: object | None = None,
+        angular_velocities: object | None = None,
     ) -> np.ndarray:
         """Add n spheres at ``positions`` (n, 3) m; returns their ids (n,) int64.
 
@@ -134,8 +153,11 @@ class World:
         if not np.all(np.isfinite(x)):
             raise ValueError("positions must be finite (found NaN or inf)")
         n = x.shape[0]
-        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,)).copy() \
-            if np.ndim(radius) == 0 or np.shape(radius) == (n,) else None
+        r = (
+            np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,)).copy()
+            if np.ndim(radius) == 0 or np.shape(radius) == (n,)
+            else None
+        )
         if r is None:
             raise ValueError(f"radius must be a scalar or shape ({n},), got {np.shape(radius)}")
         if not np.all(np.isfinite(r) & (r > 0)):
@@ -144,13 +166,24 @@ class World:
         if not (np.isfinite(rho) and rho > 0):
             raise ValueError(f"density must be > 0 kg/m³, got {density!r}")
         mu = self.friction if friction is None else nonnegative("friction", friction)
-        mur = self.rolling_resistance if rolling_resistance is None else nonnegative(
-            "rolling_resistance", rolling_resistance)
+        mur = (
+            self.rolling_resistance
+            if rolling_resistance is None
+            else nonnegative("rolling_resistance", rolling_resistance)
+        )
         v = self._vectors("velocities", velocities, n)
         w = self._vectors("angular_velocities", angular_velocities, n)
         ids = np.arange(len(self._id), len(self._id) + n, dtype=np.int64)
-        new = dict(_x=x, _v=v, _w=w, _r=r, _m=rho * 4.0 / 3.0 * np.pi * r**3,
-                   _mu=np.full(n, mu), _mur=np.full(n, mur), _id=ids)
+        new = {
+            "_x": x,
+            "_v": v,
+            "_w": w,
+            "_r": r,
+            "_m": rho * 4.0 / 3.0 * np.pi * r**3,
+            "_mu": np.full(n, mu),
+            "_mur": np.full(n, mur),
+            "_id": ids,
+        }
         for f in SPHERE_FIELDS:
             setattr(self, f, np.concatenate([getattr(self, f), new[f]]))
         return ids
@@ -204,50 +237,77 @@ class World:
         field = {"positions": "_x", "velocities": "_v", "angular_velocities": "_w"}[name]
         getattr(self, field)[:] = a[self._id]
 
-    positions = property(lambda self: self._public(self._x),
-                         lambda self, a: self._assign("positions", a),
-                         doc="Sphere centres (N, 3) m in id order (a copy; assign to set).")
-    velocities = property(lambda self: self._public(self._v),
-                          lambda self, a: self._assign("velocities", a),
-                          doc="Sphere velocities (N, 3) m/s in id order (a copy; assign to set).")
+    positions = property(
+        lambda self: self._public(self._x),
+        lambda self, a: self._assign("positions", a),
+        doc="Sphere centres (N, 3) m in id order (a copy; assign to set).",
+    )
+    velocities = property(
+        lambda self: self._public(self._v),
+        lambda self, a: self._assign("velocities", a),
+        doc="Sphere velocities (N, 3) m/s in id order (a copy; assign to set).",
+    )
     angular_velocities = property(
-        lambda self: self._public(self._w), lambda self, a: self._assign("angular_velocities", a),
-        doc="Sphere angular velocities (N, 3) rad/s in id order (a copy; assign to set).")
+        lambda self: self._public(self._w),
+        lambda self, a: self._assign("angular_velocities", a),
+        doc="Sphere angular velocities (N, 3) rad/s in id order (a copy; assign to set).",
+    )
     radii = property(lambda self: self._public(self._r), doc="Radii (N,) m in id order.")
     masses = property(lambda self: self._public(self._m), doc="Masses (N,) kg in id order.")
 
-    def set_sphere_state(self, ids: object, positions: object | None = None,
-                         velocities: object | None = None,
-                         angular_velocities: object | None = None) -> None:
+    def set_sphere_state(
+        self,
+        ids: object,
+        positions: object | None = None,
+        velocities: object | None = None,
+        angular_velocities: object | None = None,
+    ) -> None:
         """Overwrite the state of spheres ``ids`` (k,); each given array is (k, 3)."""
         ids = np.asarray(ids, dtype=np.int64).ravel()
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_spheres):
             raise ValueError(f"ids must be in [0, {self.n_spheres - 1}]")
         slot = np.empty(self.n_spheres, dtype=np.int64)
         slot[self._id] = np.arange(self.n_spheres)
-        for name, value, arr in (("positions", positions, self._x),
-                                 ("velocities", velocities, self._v),
-                                 ("angular_velocities", angular_velocities, self._w)):
+        for name, value, arr in (
+            ("positions", positions, self._x),
+            ("velocities", velocities, self._v),
+            ("angular_velocities", angular_velocities, self._w),
+        ):
             if value is not None:
                 arr[slot[ids]] = self._vectors(name, value, ids.size)
 
     # ---- bodies --------------------------------------------------------------------------
 
-    def add_plane(self, point: object = (0.0, 0.0, 0.0), normal: object = (0.0, 0.0, 1.0),
-                  friction: float | None = None) -> int:
+    def add_plane(
+        self,
+        point: object = (0.0, 0.0, 0.0),
+        normal: object = (0.0, 0.0, 1.0),
+        friction: float | None = None,
+    ) -> int:
         """A static plane through ``point`` (m); spheres stay on the side ``normal`` faces."""
-        return self.bodies.add_plane(point, normal,
-                                     self.wall_friction if friction is None else friction)
+        return self.bodies.add_plane(
+            point, normal, self.wall_friction if friction is None else friction
+        )
 
-    def add_box(self, center: object, half_extents: object, kinematic: bool = False,
-                friction: float | None = None, orientation: object | None = None) -> int:
+    def add_box(
+        self,
+        center: object,
+        half_extents: object,
+        kinematic: bool = False,
+        friction: float | None = None,
+        orientation: object | None = None,
+    ) -> int:
         """A box (static, or kinematic when its velocity is prescribed); returns its body id.
 
         ``center`` and ``half_extents`` (3,) in m; ``orientation`` a quaternion (w, x, y, z).
         """
-        return self.bodies.add_box(center, half_extents, kinematic,
-                                   self.wall_friction if friction is None else friction,
-                                   orientation)
+        return self.bodies.add_box(
+            center,
+            half_extents,
+            kinematic,
+            self.wall_friction if friction is None else friction,
+            orientation,
+        )
 
     def set_velocity(self, body: int, linear: object, angular: object | None = None) -> None:
         """Prescribe a kinematic box's velocity (m/s) and angular velocity (rad/s, None: zero)."""
@@ -327,5 +387,7 @@ class World:
         return load_world(path)
 
     def __repr__(self) -> str:
-        return (f"World(spheres={self.n_spheres}, bodies={len(self.bodies)}, dt={self.dt}, "
-                f"iterations={self.iterations}, time={self.time:.4g})")
+        return (
+            f"World(spheres={self.n_spheres}, bodies={len(self.bodies)}, dt={self.dt}, "
+            f"iterations={self.iterations}, time={self.time:.4g})"
+        )

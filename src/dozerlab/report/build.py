@@ -14,15 +14,15 @@ import json
 import os
 import re
 from collections.abc import Mapping
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.collect import HEADERS, point_figures, summarize
-from dozerlab.report.points import SweepPoint, sweep_points, validation_path
 from dozerlab.runtime import atomic_output
+from dozerlab.sweep import SweepPoint, sweep_points, validation_path
 
 #: Components of the model comparison table (the blade's draft force, lift and pitch torque).
 COMPARED = ("force_x", "force_z", "torque_y")
@@ -33,8 +33,13 @@ def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -
     """Write the report of the validated config's sweep, read from ``results``, to ``out``."""
     results, out = Path(results), Path(out)
     points = sweep_points(cfg)
-    body = [_intro(cfg, points), _sweep_table(results, points), _beds(results, points),
-            _points(results, points), _models(cfg, results, out.parent)]
+    body = [
+        _intro(cfg, points),
+        _sweep_table(results, points),
+        _beds(results, points),
+        _points(results, points),
+        _models(cfg, results, out.parent),
+    ]
     text = html.page("dozerlab report", body)
     with atomic_output(out) as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -43,8 +48,10 @@ def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -
 
 def _intro(cfg: Mapping[str, Any], points: list[SweepPoint]) -> str:
     sweep = cfg["sweep"]
-    counts = {r: sum(p.role == r for p in points) for r in ("train", "interpolation", "extrapolation")}
-    when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    counts = {
+        r: sum(p.role == r for p in points) for r in ("train", "interpolation", "extrapolation")
+    }
+    when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     return (
         f"<p>dozerlab {html.esc(__version__)}, {when}. Scenarios {html.esc(', '.join(sweep['scenarios']))}; "
         f"blade speeds {html.esc(sweep['speeds'])} m/s × cut depths {html.esc(sweep['depths'])} m: "
@@ -72,7 +79,8 @@ def _points(results: Path, points: list[SweepPoint]) -> str:
     for p in points:
         parts.append(
             f"<details><summary>{html.esc(p.scenario)} {html.esc(p.name)} ({html.esc(p.role)})</summary>"
-            + "".join(point_figures(results, p)) + "</details>"
+            + "".join(point_figures(results, p))
+            + "</details>"
         )
     return "\n".join(parts)
 
@@ -89,14 +97,21 @@ def _models(cfg: Mapping[str, Any], results: Path, html_dir: Path) -> str:
         groups = json.loads(path.read_text())["groups"]
         for group, data in groups.items():
             m = data["overall"]
-            rows.append([model, group] + [v for c in COMPARED for v in (m[c]["rel_rmse"], m[c]["r2"])])
-    headers = ["model", "held-out group"] + [f"{c} {k}" for c in COMPARED for k in ("rel. RMSE", "R²")]
+            rows.append(
+                [model, group] + [v for c in COMPARED for v in (m[c]["rel_rmse"], m[c]["r2"])]
+            )
+    headers = ["model", "held-out group"] + [
+        f"{c} {k}" for c in COMPARED for k in ("rel. RMSE", "R²")
+    ]
     sections = [inline_images(html_section(path, html_dir), html_dir) for _, path in found]
     return (
         "<h2>Models on held-out points</h2>"
         "<p>Relative RMSE is the RMSE over the RMS of the measured value.</p>"
         + html.table(headers, rows, text_columns=2)
-        + "".join(f"<details><summary>{html.esc(m)}</summary>{s}</details>" for (m, _), s in zip(found, sections))
+        + "".join(
+            f"<details><summary>{html.esc(m)}</summary>{s}</details>"
+            for (m, _), s in zip(found, sections, strict=False)
+        )
     )
 
 

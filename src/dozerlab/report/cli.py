@@ -7,7 +7,11 @@ import argparse
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="write the HTML report of the sweep's results")
-    p.add_argument("--config", default=None, help="YAML file or inline JSON (the sweep and learn sections are read)")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="YAML file or inline JSON (the sweep and learn sections are read)",
+    )
     p.add_argument("--results", default="results", help="the results directory (default: results)")
     p.add_argument("--out", default="results/report/index.html", help="the HTML file to write")
     p.set_defaults(func=_run)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.points import (
+from dozerlab.sweep import (
     SweepPoint,
     field_path,
     fmt_number,
@@ -42,12 +42,30 @@ class PointSummary:
 
     def row(self) -> list[object]:
         p = self.point
-        return [p.scenario, p.role, fmt_number(p.speed), fmt_number(p.depth), self.particles, self.steps,
-                self.wall_time, self.mean_force, self.peak_force]
+        return [
+            p.scenario,
+            p.role,
+            fmt_number(p.speed),
+            fmt_number(p.depth),
+            self.particles,
+            self.steps,
+            self.wall_time,
+            self.mean_force,
+            self.peak_force,
+        ]
 
 
-HEADERS = ["scenario", "role", "speed (m/s)", "depth (m)", "particles", "steps", "wall time (s)",
-           "mean |F| (N)", "peak |F| (N)"]
+HEADERS = [
+    "scenario",
+    "role",
+    "speed (m/s)",
+    "depth (m)",
+    "particles",
+    "steps",
+    "wall time (s)",
+    "mean |F| (N)",
+    "peak |F| (N)",
+]
 
 
 def wall_time(results: str | Path, point: SweepPoint) -> float | None:
@@ -94,9 +112,15 @@ def point_figures(results: str | Path, point: SweepPoint) -> list[str]:
                 mid = ds.sizes["time"] // 2
                 png = plot_slice(ds, mid, Path(tmp) / "slice.png")
                 t = float(ds["time"].values[mid])
-                out.append(html.figure(png, f"{point.scenario} {point.name}: density and velocity, t = {t:.2f} s"))
+                out.append(
+                    html.figure(
+                        png, f"{point.scenario} {point.name}: density and velocity, t = {t:.2f} s"
+                    )
+                )
             png = plot_force(ds, Path(tmp) / "force.png")
             out.append(html.figure(png, f"{point.scenario} {point.name}: blade force and torque"))
     if not out:
-        out.append(f'<p class="missing">{html.esc(point.scenario)} {html.esc(point.name)}: not built yet</p>')
+        out.append(
+            f'<p class="missing">{html.esc(point.scenario)} {html.esc(point.name)}: not built yet</p>'
+        )
     return out

@@ -71,7 +71,9 @@ def table(headers: Sequence[str], rows: Iterable[Sequence[Any]], text_columns: i
         return f"<{tag}{cls}>{esc(fmt(value))}</{tag}>"
 
     head = "".join(cell("th", i, h) for i, h in enumerate(headers))
-    body = "".join("<tr>" + "".join(cell("td", i, v) for i, v in enumerate(r)) + "</tr>" for r in rows)
+    body = "".join(
+        "<tr>" + "".join(cell("td", i, v) for i, v in enumerate(r)) + "</tr>" for r in rows
+    )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -87,7 +89,7 @@ def fmt(value: Any) -> str:
 def page(title: str, body: Sequence[str]) -> str:
     """A complete HTML document."""
     return (
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
         f"<title>{esc(title)}</title><style>{_STYLE}</style></head>\n<body>\n"
         f"<h1>{esc(title)}</h1>\n" + "\n".join(body) + "\n</body></html>\n"
     )

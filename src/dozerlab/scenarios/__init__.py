@@ -8,11 +8,27 @@
 """
 
 from dozerlab.scenarios.bed import SCENARIOS, Bed
-from dozerlab.scenarios.blade import BladeGeometry, add_blade, centre_to_tip, start_tip, tip_to_centre
+from dozerlab.scenarios.blade import (
+    BladeGeometry,
+    add_blade,
+    centre_to_tip,
+    start_tip,
+    tip_to_centre,
+)
 from dozerlab.scenarios.build import build_bed, make_world
 from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory, plot_trajectory
 
 __all__ = [
-    "SCENARIOS", "Bed", "BladeGeometry", "Trajectory", "add_blade", "build_bed", "centre_to_tip",
-    "make_world", "plan_trajectory", "plot_trajectory", "start_tip", "tip_to_centre",
+    "SCENARIOS",
+    "Bed",
+    "BladeGeometry",
+    "Trajectory",
+    "add_blade",
+    "build_bed",
+    "centre_to_tip",
+    "make_world",
+    "plan_trajectory",
+    "plot_trajectory",
+    "start_tip",
+    "tip_to_centre",
 ]

@@ -19,8 +19,16 @@ from dozerlab.runtime import DozerlabError, atomic_output
 
 SCENARIOS: tuple[str, ...] = ("hill", "step")
 
-_ARRAYS = ("positions", "radii", "masses", "velocities", "angular_velocities",
-           "settle_time", "settle_kinetic_energy", "settle_contacts")
+_ARRAYS = (
+    "positions",
+    "radii",
+    "masses",
+    "velocities",
+    "angular_velocities",
+    "settle_time",
+    "settle_kinetic_energy",
+    "settle_contacts",
+)
 
 
 @dataclass
@@ -75,14 +83,20 @@ class Bed:
             return 0.0
         lin = 0.5 * self.masses * np.einsum("ij,ij->i", self.velocities, self.velocities)
         inertia = 0.4 * self.masses * self.radii**2
-        rot = 0.5 * inertia * np.einsum("ij,ij->i", self.angular_velocities, self.angular_velocities)
+        rot = (
+            0.5 * inertia * np.einsum("ij,ij->i", self.angular_velocities, self.angular_velocities)
+        )
         return float((lin + rot).mean())
 
     def save(self, path: str | Path) -> None:
         """Write the bed to ``path`` (.npz) atomically."""
         meta = {
-            "scenario": self.scenario, "length": self.length, "width": self.width,
-            "material": self.material, "seed": self.seed, "info": self.info,
+            "scenario": self.scenario,
+            "length": self.length,
+            "width": self.width,
+            "material": self.material,
+            "seed": self.seed,
+            "info": self.info,
             "dozerlab_version": __version__,
         }
         arrays = {name: getattr(self, name) for name in _ARRAYS}
@@ -102,7 +116,11 @@ class Bed:
         except (KeyError, ValueError, OSError) as exc:
             raise DozerlabError(f"{path} is not a dozerlab bed file: {exc}") from exc
         return cls(
-            scenario=meta["scenario"], length=float(meta["length"]), width=float(meta["width"]),
-            material=dict(meta["material"]), seed=int(meta["seed"]), info=dict(meta.get("info", {})),
+            scenario=meta["scenario"],
+            length=float(meta["length"]),
+            width=float(meta["width"]),
+            material=dict(meta["material"]),
+            seed=int(meta["seed"]),
+            info=dict(meta.get("info", {})),
             **arrays,
         )

@@ -31,7 +31,9 @@ class BladeGeometry:
     def from_config(cls, config: dict[str, Any]) -> BladeGeometry:
         """The ``blade`` section of a validated config."""
         b = config["blade"]
-        return cls(float(b["width"]), float(b["height"]), float(b["thickness"]), float(b["start_gap"]))
+        return cls(
+            float(b["width"]), float(b["height"]), float(b["thickness"]), float(b["start_gap"])
+        )
 
     @property
     def half_extents(self) -> np.ndarray:

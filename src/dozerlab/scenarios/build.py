@@ -51,13 +51,19 @@ def target_profile(scenario: str, config: dict[str, Any], x: np.ndarray) -> np.n
     x = np.asarray(x, dtype=np.float64)
     if scenario == "hill":
         if s["peak_height"] <= s["base_height"]:
-            raise ValueError(f"scenarios.hill.peak_height ({s['peak_height']}) must be > base_height "
-                             f"({s['base_height']})")
+            raise ValueError(
+                f"scenarios.hill.peak_height ({s['peak_height']}) must be > base_height "
+                f"({s['base_height']})"
+            )
         u = np.clip((x - s["center"] * length) / (s["half_width"] * length), -1.0, 1.0)
-        return s["base_height"] + (s["peak_height"] - s["base_height"]) * np.cos(0.5 * np.pi * u) ** 2
+        return (
+            s["base_height"] + (s["peak_height"] - s["base_height"]) * np.cos(0.5 * np.pi * u) ** 2
+        )
     if s["high_height"] <= s["low_height"]:
-        raise ValueError(f"scenarios.step.high_height ({s['high_height']}) must be > low_height "
-                         f"({s['low_height']})")
+        raise ValueError(
+            f"scenarios.step.high_height ({s['high_height']}) must be > low_height "
+            f"({s['low_height']})"
+        )
     return np.where(x < s["edge"] * length, float(s["high_height"]), float(s["low_height"]))
 
 
@@ -69,7 +75,9 @@ def _add_walls(world: World, length: float, width: float, friction: float) -> di
         "wall_left": ((0.0, -0.5 * width, 0.0), (0.0, 1.0, 0.0)),
         "wall_right": ((0.0, 0.5 * width, 0.0), (0.0, -1.0, 0.0)),
     }
-    return {name: world.add_plane(np.array(p), np.array(n), friction) for name, (p, n) in planes.items()}
+    return {
+        name: world.add_plane(np.array(p), np.array(n), friction) for name, (p, n) in planes.items()
+    }
 
 
 def make_world(bed: Bed, config: dict[str, Any]) -> tuple[World, dict[str, int]]:
@@ -85,11 +93,24 @@ def make_world(bed: Bed, config: dict[str, Any]) -> tuple[World, dict[str, int]]
     return world, ids
 
 
-def _add_particles(world: World, positions: np.ndarray, radii: np.ndarray, config: dict[str, Any],
-                   velocities: np.ndarray | None = None, angular_velocities: np.ndarray | None = None) -> np.ndarray:
+def _add_particles(
+    world: World,
+    positions: np.ndarray,
+    radii: np.ndarray,
+    config: dict[str, Any],
+    velocities: np.ndarray | None = None,
+    angular_velocities: np.ndarray | None = None,
+) -> np.ndarray:
     m = config["material"]
-    return world.add_spheres(positions, radii, m["density"], m["friction"], m["rolling_resistance"],
-                             velocities=velocities, angular_velocities=angular_velocities)
+    return world.add_spheres(
+        positions,
+        radii,
+        m["density"],
+        m["friction"],
+        m["rolling_resistance"],
+        velocities=velocities,
+        angular_velocities=angular_velocities,
+    )
 
 
 def _kinetic_energy(world: World) -> float:
@@ -118,12 +139,18 @@ class _Emitter:
     def __init__(self, scenario: str, config: dict[str, Any], rng: np.random.Generator):
         b = config["bed"]
         self.length, self.width = float(b["length"]), float(b["width"])
-        self.r, self.spread, self.gap = float(b["radius"]), float(b["radius_dispersion"]), float(b["emitter_gap"])
+        self.r, self.spread, self.gap = (
+            float(b["radius"]),
+            float(b["radius_dispersion"]),
+            float(b["emitter_gap"]),
+        )
         self.rng = rng
         cell = 2.0 * self.r * (1.0 + self.spread) + CELL_SLACK_RADII * self.r
         if cell > min(self.length, self.width):
-            raise ValueError(f"bed.length ({self.length} m) and bed.width ({self.width} m) must both exceed "
-                             f"one emitter cell of {cell:.3g} m (bed.radius {self.r} m is too large)")
+            raise ValueError(
+                f"bed.length ({self.length} m) and bed.width ({self.width} m) must both exceed "
+                f"one emitter cell of {cell:.3g} m (bed.radius {self.r} m is too large)"
+            )
         self.n_rows, self.columns = int(self.length // cell), int(self.width // cell)
         self.cell_x, self.cell_y = self.length / self.n_rows, self.width / self.columns
         self.rows = min(STRIP_ROWS, self.n_rows)
@@ -131,16 +158,21 @@ class _Emitter:
         mean_volume = 4.0 / 3.0 * np.pi * self.r**3 * (1.0 + self.spread**2)
         #: Particles each cell of a row should hold (n_rows,).
         self.quota = float(b["packing_fraction"]) * self.cell_x * self.cell_y * height / mean_volume
-        self.estimate = int(round(self.quota.sum() * self.columns))
+        self.estimate = round(self.quota.sum() * self.columns)
         if self.estimate < 1:
             raise ValueError("the scenario's bed heights are too low to hold a single particle")
         self.rear, self.tries = 0, 0
         # A layer must land before the next is laid over it, or each new layer would sit on the
         # falling one before it and the drops would grow without bound; the strip also keeps
         # below emitter_speed.
-        self.drop_speed, g = float(b["emitter_drop_speed"]), float(np.linalg.norm(config["solver"]["gravity"]))
+        self.drop_speed, g = (
+            float(b["emitter_drop_speed"]),
+            float(np.linalg.norm(config["solver"]["gravity"])),
+        )
         fall = 2.0 * self.gap / (self.drop_speed + np.sqrt(self.drop_speed**2 + 4.0 * g * self.gap))
-        self.period = max(fall + LANDING_STEPS * float(b["dt"]), self.cell_x / float(b["emitter_speed"]))
+        self.period = max(
+            fall + LANDING_STEPS * float(b["dt"]), self.cell_x / float(b["emitter_speed"])
+        )
         self.in_flight = 0.9 * max(self.drop_speed, np.sqrt(2.0 * g * self.gap))
 
     @property
@@ -148,7 +180,9 @@ class _Emitter:
         """Whether the strip has passed the end of the domain."""
         return self.rear >= self.n_rows
 
-    def layer(self, pos: np.ndarray, rad: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def layer(
+        self, pos: np.ndarray, rad: np.ndarray, vel: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The next layer: positions (k, 3) and radii (k,) of new particles; moves the strip on.
 
         Each particle sits ``emitter_gap`` (up to twice that, at random) above the height at which
@@ -162,27 +196,43 @@ class _Emitter:
         counts = np.zeros((last - self.rear, self.columns))
         row = np.floor(pos[:, 0] / self.cell_x).astype(np.int64)
         inside = (row >= self.rear) & (row < last)
-        col = np.clip(np.floor((pos[inside, 1] + 0.5 * self.width) / self.cell_y).astype(np.int64), 0, self.columns - 1)
+        col = np.clip(
+            np.floor((pos[inside, 1] + 0.5 * self.width) / self.cell_y).astype(np.int64),
+            0,
+            self.columns - 1,
+        )
         np.add.at(counts, (row[inside] - self.rear, col), 1.0)
         if counts[0].sum() >= self.quota[self.rear] * self.columns or self.tries >= ROW_PATIENCE * (
-                self.quota[self.rear] + 1.0):
+            self.quota[self.rear] + 1.0
+        ):
             self.rear, self.tries = self.rear + 1, 0
             return np.zeros((0, 3)), np.zeros(0)
         self.tries += 1
-        ix, iy = np.nonzero(counts < self.quota[self.rear:last, None])
+        ix, iy = np.nonzero(counts < self.quota[self.rear : last, None])
         ix = ix + self.rear
         n = ix.size
         radius = self.r * (1.0 + self.spread * rng.uniform(-1.0, 1.0, n))
         cx = (ix + 0.5) * self.cell_x + (0.5 * self.cell_x - radius) * rng.uniform(-1.0, 1.0, n)
-        cy = -0.5 * self.width + (iy + 0.5) * self.cell_y + (0.5 * self.cell_y - radius) * rng.uniform(-1.0, 1.0, n)
+        cy = (
+            -0.5 * self.width
+            + (iy + 0.5) * self.cell_y
+            + (0.5 * self.cell_y - radius) * rng.uniform(-1.0, 1.0, n)
+        )
         lift = self.gap * (1.0 + rng.uniform(0.0, 1.0, n))
         reach = 2.0 * self.r * (1.0 + self.spread)
-        near = (pos[:, 0] > self.rear * self.cell_x - reach) & (pos[:, 0] < last * self.cell_x + reach)
+        near = (pos[:, 0] > self.rear * self.cell_x - reach) & (
+            pos[:, 0] < last * self.cell_x + reach
+        )
         p, r = pos[near], rad[near]
         flying = np.linalg.norm(vel[near], axis=1) > self.in_flight
-        reach2 = (r[None, :] + radius[:, None]) ** 2 - (p[None, :, 0] - cx[:, None]) ** 2 \
+        reach2 = (
+            (r[None, :] + radius[:, None]) ** 2
+            - (p[None, :, 0] - cx[:, None]) ** 2
             - (p[None, :, 1] - cy[:, None]) ** 2
-        rest = np.where((reach2 > 0.0) & ~flying[None, :], p[None, :, 2] + np.sqrt(np.maximum(reach2, 0.0)), 0.0)
+        )
+        rest = np.where(
+            (reach2 > 0.0) & ~flying[None, :], p[None, :, 2] + np.sqrt(np.maximum(reach2, 0.0)), 0.0
+        )
         cz = np.maximum(radius, rest.max(axis=1, initial=0.0)) + lift
         clash = ((reach2 > (cz[:, None] - p[None, :, 2]) ** 2) & flying[None, :]).any(axis=1)
         return np.column_stack([cx, cy, cz])[~clash], radius[~clash]
@@ -203,13 +253,19 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     emitter = _Emitter(scenario, config, np.random.default_rng(int(config["seed"])))
     dt, log_every = float(b["dt"]), int(b["log_every"])
     world = World(
-        dt, int(b["iterations"]), solver["gravity"], damping_steps=solver["damping_steps"],
-        youngs_modulus=mat["youngs_modulus"], poisson_ratio=mat["poisson_ratio"],
+        dt,
+        int(b["iterations"]),
+        solver["gravity"],
+        damping_steps=solver["damping_steps"],
+        youngs_modulus=mat["youngs_modulus"],
+        poisson_ratio=mat["poisson_ratio"],
         max_overlap=solver["max_overlap"],
     )
     _add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
     # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
-    emission_steps = int(np.ceil((emitter.n_rows + 2.0 * emitter.estimate / emitter.columns) * emitter.period / dt))
+    emission_steps = int(
+        np.ceil((emitter.n_rows + 2.0 * emitter.estimate / emitter.columns) * emitter.period / dt)
+    )
     max_steps = emission_steps + int(np.ceil(float(b["max_settle_time"]) / dt))
     threshold = float(b["settle_kinetic_energy"])
     log_t: list[float] = []
@@ -245,7 +301,8 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
                 raise DozerlabError(
                     f"bed {scenario}: the emitter strip reached only x = {emitter.rear * emitter.cell_x:.3g} m "
                     f"of {emitter.length} m in {step * dt:.3g} s; the bed does not reach its target height "
-                    f"(check bed.packing_fraction and the scenarios heights)")
+                    f"(check bed.packing_fraction and the scenarios heights)"
+                )
     finally:
         bar.close()
     if step % log_every:
@@ -256,17 +313,33 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         raise DozerlabError(
             f"bed {scenario} did not settle within bed.max_settle_time = {b['max_settle_time']} s after "
             f"the last layer (kinetic energy per particle {energy:.3g} J > bed.settle_kinetic_energy "
-            f"{threshold:g} J); raise bed.max_settle_time or bed.iterations")
+            f"{threshold:g} J); raise bed.max_settle_time or bed.iterations"
+        )
     bed = Bed(
-        scenario=scenario, length=emitter.length, width=emitter.width,
-        positions=world.positions.copy(), radii=world.radii.copy(), masses=world.masses.copy(),
-        velocities=world.velocities.copy(), angular_velocities=world.angular_velocities.copy(),
-        material=dict(mat), seed=int(config["seed"]),
-        settle_time=np.array(log_t), settle_kinetic_energy=np.array(log_e), settle_contacts=np.array(log_c),
-        info={"time": step * dt, "steps": step, "emission_time": emission_time,
-              "wall_time": time.perf_counter() - start, "dt": dt, "iterations": int(b["iterations"]),
-              "layers": layers, "bed": dict(b),
-              "shape": dict(config["scenarios"][scenario])},
+        scenario=scenario,
+        length=emitter.length,
+        width=emitter.width,
+        positions=world.positions.copy(),
+        radii=world.radii.copy(),
+        masses=world.masses.copy(),
+        velocities=world.velocities.copy(),
+        angular_velocities=world.angular_velocities.copy(),
+        material=dict(mat),
+        seed=int(config["seed"]),
+        settle_time=np.array(log_t),
+        settle_kinetic_energy=np.array(log_e),
+        settle_contacts=np.array(log_c),
+        info={
+            "time": step * dt,
+            "steps": step,
+            "emission_time": emission_time,
+            "wall_time": time.perf_counter() - start,
+            "dt": dt,
+            "iterations": int(b["iterations"]),
+            "layers": layers,
+            "bed": dict(b),
+            "shape": dict(config["scenarios"][scenario]),
+        },
     )
     _check_inside(bed)
     return bed
@@ -276,8 +349,12 @@ def _check_inside(bed: Bed) -> None:
     """Raise DozerlabError if a particle centre lies outside the walled domain (a blown-up build)."""
     p, slack = bed.positions, 0.5 * bed.radii
     outside = (
-        (p[:, 0] < -slack) | (p[:, 0] > bed.length + slack)
-        | (np.abs(p[:, 1]) > 0.5 * bed.width + slack) | (p[:, 2] < -slack)
+        (p[:, 0] < -slack)
+        | (p[:, 0] > bed.length + slack)
+        | (np.abs(p[:, 1]) > 0.5 * bed.width + slack)
+        | (p[:, 2] < -slack)
     )
     if outside.any():
-        raise DozerlabError(f"bed {bed.scenario}: {int(outside.sum())} particles left the domain while settling")
+        raise DozerlabError(
+            f"bed {bed.scenario}: {int(outside.sum())} particles left the domain while settling"
+        )

@@ -8,20 +8,35 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bed", help="build and settle a scenario's particle bed")
     p.add_argument("--scenario", required=True, help="hill or step")
-    p.add_argument("--config", default=None, help="YAML file or inline JSON (default: all defaults)")
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
     p.add_argument("--out", required=True, help="bed file to write (.npz)")
     p.add_argument("--plot", default=None, help="also write a PNG of the bed and its settle log")
     p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
-    p.add_argument("--no-progress", dest="progress", action="store_false", help="hide the progress bar")
+    p.add_argument(
+        "--no-progress", dest="progress", action="store_false", help="hide the progress bar"
+    )
     p.set_defaults(func=_bed)
 
     p = sub.add_parser("trajectory", help="plan a blade path over a bed (SPEC §4)")
     p.add_argument("--bed", required=True, help="bed file written by 'dozerlab bed'")
-    p.add_argument("--speed", type=float, required=True, help="blade speed along the path in m/s (> 0)")
-    p.add_argument("--depth", type=float, required=True, help="cut depth in m (> 0, less than the bed's height)")
-    p.add_argument("--config", default=None, help="YAML file or inline JSON (default: all defaults)")
+    p.add_argument(
+        "--speed", type=float, required=True, help="blade speed along the path in m/s (> 0)"
+    )
+    p.add_argument(
+        "--depth",
+        type=float,
+        required=True,
+        help="cut depth in m (> 0, less than the bed's height)",
+    )
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
     p.add_argument("--out", required=True, help="CSV to write: step,time,x,y,z,vx,vy,vz")
-    p.add_argument("--plot", default=None, help="also write a PNG of the height field, path and velocities")
+    p.add_argument(
+        "--plot", default=None, help="also write a PNG of the height field, path and velocities"
+    )
     p.set_defaults(func=_trajectory)
 
 
@@ -41,7 +56,9 @@ def _bed(args: argparse.Namespace) -> int:
 
     params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
     params["scenario"] = config["scenarios"][args.scenario]
-    with tracked_run(f"bed {args.scenario}", rule="bed", tags={"scenario": args.scenario}, params=params) as run:
+    with tracked_run(
+        f"bed {args.scenario}", rule="bed", tags={"scenario": args.scenario}, params=params
+    ) as run:
         bed = build_bed(args.scenario, config, progress=args.progress)
         bed.save(args.out)
         if args.plot:
@@ -49,13 +66,15 @@ def _bed(args: argparse.Namespace) -> int:
         if run is not None:
             import mlflow
 
-            mlflow.log_metrics({
-                "particle_count": bed.count,
-                "settle_time": bed.info["time"],
-                "kinetic_energy_per_particle": bed.kinetic_energy_per_particle(),
-                "wall_time": bed.info["wall_time"],
-                "steps": bed.info["steps"],
-            })
+            mlflow.log_metrics(
+                {
+                    "particle_count": bed.count,
+                    "settle_time": bed.info["time"],
+                    "kinetic_energy_per_particle": bed.kinetic_energy_per_particle(),
+                    "wall_time": bed.info["wall_time"],
+                    "steps": bed.info["steps"],
+                }
+            )
             if args.plot:
                 mlflow.log_artifact(args.plot)
     return 0

@@ -54,7 +54,9 @@ def height_field(
     """
     nx, ny = (int(n) for n in subdivisions)
     if nx < 1 or ny < 1:
-        raise ValueError(f"trajectory.subdivisions must be >= 1 in both directions, got {subdivisions}")
+        raise ValueError(
+            f"trajectory.subdivisions must be >= 1 in both directions, got {subdivisions}"
+        )
     if length <= 0 or width <= 0:
         raise ValueError(f"bed length and width must be > 0 m, got {length}, {width}")
     pos = np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 3)

@@ -43,12 +43,22 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
 
     ax = axes[1]
     if traj.height_x.size:
-        ax.fill_between(traj.height_x, 0, traj.height_filtered, color="tan", alpha=0.6, label="filtered bed")
+        ax.fill_between(
+            traj.height_x, 0, traj.height_filtered, color="tan", alpha=0.6, label="filtered bed"
+        )
     if np.isfinite(traj.goal_height):
-        ax.axhline(traj.goal_height, ls="--", color="k", lw=0.8, label=f"goal height {traj.goal_height:g} m")
+        ax.axhline(
+            traj.goal_height,
+            ls="--",
+            color="k",
+            lw=0.8,
+            label=f"goal height {traj.goal_height:g} m",
+        )
     ax.plot(traj.position[:, 0], traj.position[:, 2], color="C3", lw=1.4, label="blade tip")
     ax.set_ylabel("z [m]")
-    ax.set_title(f"trajectory: speed {traj.speed:g} m/s, cut depth {traj.depth:g} m, {traj.steps} steps")
+    ax.set_title(
+        f"trajectory: speed {traj.speed:g} m/s, cut depth {traj.depth:g} m, {traj.steps} steps"
+    )
     ax.legend(loc="upper right")
 
     ax = axes[2]
@@ -82,7 +92,9 @@ def plot_bed(bed: Bed, path: str | Path) -> None:
 
     ax = fig.add_subplot(grid[1])
     top = np.argsort(bed.positions[:, 2])
-    sc = ax.scatter(bed.positions[top, 0], bed.positions[top, 1], s=4, c=bed.positions[top, 2], cmap="terrain")
+    sc = ax.scatter(
+        bed.positions[top, 0], bed.positions[top, 1], s=4, c=bed.positions[top, 2], cmap="terrain"
+    )
     fig.colorbar(sc, ax=ax, label="z [m]")
     ax.set_aspect("equal")
     ax.set_xlim(0, bed.length)

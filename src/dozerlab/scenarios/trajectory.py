@@ -37,7 +37,7 @@ from dozerlab.scenarios.filters import smooth_height
 from dozerlab.scenarios.heightfield import height_field
 from dozerlab.scenarios.plots import plot_trajectory
 
-__all__ = ["Trajectory", "plan_trajectory", "cut_path", "walk_path", "plot_trajectory"]
+__all__ = ["Trajectory", "cut_path", "plan_trajectory", "plot_trajectory", "walk_path"]
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
 
@@ -81,8 +81,14 @@ class Trajectory:
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
         with atomic_output(path) as tmp:
-            np.savetxt(tmp, table, delimiter=",", header=",".join(CSV_COLUMNS), comments="",
-                       fmt=["%d"] + ["%.17g"] * 7)
+            np.savetxt(
+                tmp,
+                table,
+                delimiter=",",
+                header=",".join(CSV_COLUMNS),
+                comments="",
+                fmt=["%d"] + ["%.17g"] * 7,
+            )
 
     @classmethod
     def load_csv(cls, path: str | Path) -> Trajectory:
@@ -93,16 +99,22 @@ class Trajectory:
         with open(path) as fh:
             header = fh.readline().strip()
         if header != ",".join(CSV_COLUMNS):
-            raise DozerlabError(f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header!r}")
+            raise DozerlabError(
+                f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header!r}"
+            )
         table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
         if len(table) < 2:
             raise DozerlabError(f"{path}: a trajectory needs at least 2 rows, got {len(table)}")
         time, position, velocity = table[:, 1], table[:, 2:5], table[:-1, 5:8]
         return cls(
-            time=np.ascontiguousarray(time), position=np.ascontiguousarray(position),
+            time=np.ascontiguousarray(time),
+            position=np.ascontiguousarray(position),
             velocity=np.ascontiguousarray(velocity),
             speed=float(np.median(np.linalg.norm(velocity, axis=1))),
-            depth=float("nan"), scenario="", goal_height=float("nan"), dt=float(time[1] - time[0]),
+            depth=float("nan"),
+            scenario="",
+            goal_height=float("nan"),
+            dt=float(time[1] - time[0]),
         )
 
 
@@ -172,8 +184,10 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
     goal = float(config["scenarios"][bed.scenario]["goal_height"])
     end_x = bed.length - float(tcfg["end_margin"])
     if end_x <= 0:
-        raise ValueError(f"trajectory.end_margin must be < the bed length {bed.length} m, "
-                         f"got {tcfg['end_margin']}")
+        raise ValueError(
+            f"trajectory.end_margin must be < the bed length {bed.length} m, "
+            f"got {tcfg['end_margin']}"
+        )
 
     x, field = height_field(bed.positions, bed.radii, bed.length, bed.width, tcfg["subdivisions"])
     raw = field.mean(axis=1)
@@ -181,11 +195,15 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
     keep = x <= end_x
     top = float(smooth[keep].max()) if keep.any() else 0.0
     if depth >= top:
-        raise ValueError(f"depth {depth} m is deeper than the bed: allowed 0 < depth < {top:.3f} m "
-                         "(the filtered bed's highest point before the path's end)")
+        raise ValueError(
+            f"depth {depth} m is deeper than the bed: allowed 0 < depth < {top:.3f} m "
+            "(the filtered bed's highest point before the path's end)"
+        )
     if goal >= top:
-        raise ValueError(f"scenarios.{bed.scenario}.goal_height {goal} m is outside the bed: allowed "
-                         f"0 <= goal_height < {top:.3f} m (the filtered bed's highest point)")
+        raise ValueError(
+            f"scenarios.{bed.scenario}.goal_height {goal} m is outside the bed: allowed "
+            f"0 <= goal_height < {top:.3f} m (the filtered bed's highest point)"
+        )
 
     cut = cut_path(x, smooth, depth, goal)
     end_h = float(np.interp(end_x, x, smooth))
@@ -200,7 +218,9 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
 
     xz = walk_path(path, speed * dt)
     if len(xz) < 2:
-        raise ValueError(f"the path is shorter than one step of {speed * dt} m; lower the speed or dt")
+        raise ValueError(
+            f"the path is shorter than one step of {speed * dt} m; lower the speed or dt"
+        )
     planned = np.column_stack([xz[:, 0], np.zeros(len(xz)), xz[:, 1]])
     velocity = np.diff(planned, axis=0) / dt
     position = np.empty_like(planned)
@@ -208,7 +228,16 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
     for i, v in enumerate(velocity):
         position[i + 1] = position[i] + dt * v
     return Trajectory(
-        time=np.arange(len(position)) * dt, position=position, velocity=velocity,
-        speed=float(speed), depth=float(depth), scenario=bed.scenario, goal_height=goal, dt=dt,
-        height_x=x, height_raw=raw, height_filtered=smooth, path=path,
+        time=np.arange(len(position)) * dt,
+        position=position,
+        velocity=velocity,
+        speed=float(speed),
+        depth=float(depth),
+        scenario=bed.scenario,
+        goal_height=goal,
+        dt=dt,
+        height_x=x,
+        height_raw=raw,
+        height_filtered=smooth,
+        path=path,
     )

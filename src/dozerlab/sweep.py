@@ -22,7 +22,9 @@ from dozerlab.config import ConfigError
 ROLES = ("train", "interpolation", "extrapolation")
 #: What a speed or depth looks like in a path (the Snakefile's wildcard constraint).
 NUMBER_PATTERN = r"[0-9]+\.[0-9]+"
-_POINT = re.compile(rf"speed~(?P<speed>{NUMBER_PATTERN})_depth~(?P<depth>{NUMBER_PATTERN})(\.[A-Za-z]+)?")
+_POINT = re.compile(
+    rf"speed~(?P<speed>{NUMBER_PATTERN})_depth~(?P<depth>{NUMBER_PATTERN})(\.[A-Za-z]+)?"
+)
 
 
 def fmt_number(value: float) -> str:
@@ -44,7 +46,9 @@ def check_canonical(name: str, text: str) -> float:
     except ValueError:
         raise ValueError(f"{name} '{text}' is not a number") from None
     if fmt_number(value) != text:
-        raise ValueError(f"{name} '{text}' is not in canonical form; ask for {name}~{fmt_number(value)}")
+        raise ValueError(
+            f"{name} '{text}' is not in canonical form; ask for {name}~{fmt_number(value)}"
+        )
     return value
 
 
