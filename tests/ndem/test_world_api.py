@@ -170,7 +170,7 @@ def test_divergence_errors_name_what_diverged():
         w.step()
     w = World(gravity=(0.0, 0.0, 0.0))
     w.add_spheres([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], radius=0.05)
-    w._v[w._id == 1, 0] = np.nan  # the public setters refuse NaN, so corrupt the storage
+    w.state.v[w.state.id == 1, 0] = np.nan  # the public setters refuse NaN, so corrupt the storage
     with pytest.raises(DivergenceError, match=r"non-finite .* ids \[1\]") as info:
         w.step()
     assert isinstance(info.value, DozerlabError) and isinstance(info.value, RuntimeError)

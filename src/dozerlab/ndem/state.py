@@ -1,74 +1,70 @@
-"""Saving and loading a World as one ``.npz`` (no pickles), e.g. to reuse a settled bed."""
+"""A World's dynamic state: the spheres in slot order, the warm start and the clock.
+
+Spheres are stored sorted by grid cell (the stepper re-sorts them every step), so the solver
+walks memory in spatial order; ``id`` maps slot → sphere id.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from dozerlab.ndem.bodies import FIELDS as BODY_FIELDS
-from dozerlab.ndem.world import SPHERE_FIELDS, World
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.ndem.warmstart import WarmStart
 
-FORMAT_VERSION = 1
-PARAMETERS = (
-    "dt",
-    "iterations",
-    "damping_steps",
-    "youngs_modulus",
-    "poisson_ratio",
-    "max_overlap",
-    "density",
-    "friction",
-    "rolling_resistance",
-    "wall_friction",
-    "contact_margin",
-    "slabs",
-    "warm_start",
-    "time",
-    "step_count",
-)
+# The per-sphere arrays, all in slot order: centre (N, 3) m, velocity (N, 3) m/s, angular
+# velocity (N, 3) rad/s, radius (N,) m, mass (N,) kg, friction μ (N,), rolling resistance (N,),
+# sphere id (N,) int64.
+SPHERE_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
 
 
-def save_world(world: World, path: str | Path) -> None:
-    """Write ``world`` to ``path`` (.npz) atomically."""
-    arrays: dict[str, np.ndarray] = {"format_version": np.array(FORMAT_VERSION)}
-    arrays |= {f"param_{p}": np.array(getattr(world, p)) for p in PARAMETERS}
-    arrays["param_gravity"] = world.gravity
-    arrays |= {f"sphere{f}": getattr(world, f) for f in SPHERE_FIELDS}
-    arrays |= {f"body_{f}": getattr(world.bodies, f) for f in BODY_FIELDS}
-    arrays |= {
-        "body_force": world.bodies.force,
-        "body_torque": world.bodies.torque,
-        "warm_start": world._warm.start,
-        "warm_hi": world._warm.hi,
-        "warm_lam": world._warm.lam,
-    }
-    with atomic_output(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+def _vectors() -> np.ndarray:
+    return np.zeros((0, 3))
 
 
-def load_world(path: str | Path) -> World:
-    """Read a World written by :func:`save_world`."""
-    with np.load(path, allow_pickle=False) as f:
-        if "format_version" not in f or int(f["format_version"]) != FORMAT_VERSION:
-            raise DozerlabError(
-                f"{path} is not a dozerlab.ndem World file (format {FORMAT_VERSION})"
-            )
-        p = {name: f[f"param_{name}"].item() for name in PARAMETERS}
-        world = World(
-            **{k: v for k, v in p.items() if k not in ("time", "step_count")},
-            gravity=tuple(f["param_gravity"]),
-        )
-        world.time, world.step_count = float(p["time"]), int(p["step_count"])
-        for name in SPHERE_FIELDS:
-            setattr(world, name, np.ascontiguousarray(f[f"sphere{name}"]))
-        for name in BODY_FIELDS:
-            setattr(world.bodies, name, np.ascontiguousarray(f[f"body_{name}"]))
-        world.bodies.force = f["body_force"].copy()
-        world.bodies.torque = f["body_torque"].copy()
-        world.bodies.load_center = world.bodies.center.copy()
-        world._warm.start = f["warm_start"].copy()
-        world._warm.hi = f["warm_hi"].copy()
-        world._warm.lam = f["warm_lam"].copy()
-    return world
+def _scalars() -> np.ndarray:
+    return np.zeros(0)
+
+
+@dataclass
+class WorldState:
+    """Everything a step changes besides the bodies (see :data:`SPHERE_FIELDS`)."""
+
+    x: np.ndarray = field(default_factory=_vectors)
+    v: np.ndarray = field(default_factory=_vectors)
+    w: np.ndarray = field(default_factory=_vectors)
+    r: np.ndarray = field(default_factory=_scalars)
+    m: np.ndarray = field(default_factory=_scalars)
+    mu: np.ndarray = field(default_factory=_scalars)
+    mur: np.ndarray = field(default_factory=_scalars)
+    id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    warm: WarmStart = field(default_factory=WarmStart)
+    time: float = 0.0
+    step_count: int = 0
+
+    @property
+    def n(self) -> int:
+        """Number of spheres N."""
+        return int(self.id.shape[0])
+
+    def reorder(self, index: np.ndarray) -> None:
+        """Keep the slots ``index`` (a permutation, or a boolean mask) in that order."""
+        for f in SPHERE_FIELDS:
+            setattr(self, f, np.ascontiguousarray(getattr(self, f)[index]))
+
+    def append(self, **arrays: np.ndarray) -> None:
+        """Append spheres: one array per name of :data:`SPHERE_FIELDS`."""
+        for f in SPHERE_FIELDS:
+            setattr(self, f, np.concatenate([getattr(self, f), arrays[f]]))
+
+    def public(self, a: np.ndarray) -> np.ndarray:
+        """A per-slot array reordered to id order (a copy)."""
+        out = np.empty_like(a)
+        out[self.id] = a
+        return out
+
+    def slots(self) -> np.ndarray:
+        """Slot of every sphere id (N,) int64."""
+        slot = np.empty(self.n, dtype=np.int64)
+        slot[self.id] = np.arange(self.n)
+        return slot

@@ -2,87 +2,78 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numba
 import numpy as np
 
 from dozerlab.ndem import broadphase, contacts, solver
+from dozerlab.ndem.bodies import Bodies
+from dozerlab.ndem.params import Parameters
+from dozerlab.ndem.state import WorldState
 from dozerlab.ndem.stats import DivergenceError, StepStats
 
-if TYPE_CHECKING:
-    from dozerlab.ndem.world import World
-
-SORTED_FIELDS = ("_x", "_v", "_w", "_r", "_m", "_mu", "_mur", "_id")
 # Below this many contacts a sweep is too short to pay for the per-phase thread barriers.
 PARALLEL_MIN_CONTACTS = 4096
 
 
-def _sort(world: World) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sort(state: WorldState, p: Parameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-sort the spheres by grid cell; returns the cell of each slot, cell offsets and dims."""
-    reach = _reach(world)
-    lo, cell, dims = broadphase.grid_layout(
-        world._x, float(reach.max()), max(8 * world.n_spheres, 4096)
-    )
-    cells = broadphase.cell_indices(world._x, lo, cell, dims)
+    reach = _reach(state, p)
+    lo, cell, dims = broadphase.grid_layout(state.x, float(reach.max()), max(8 * state.n, 4096))
+    cells = broadphase.cell_indices(state.x, lo, cell, dims)
     perm, start = broadphase.counting_sort(cells, int(np.prod(dims)))
-    for f in SORTED_FIELDS:
-        setattr(world, f, np.ascontiguousarray(getattr(world, f)[perm]))
+    state.reorder(perm)
     return cells[perm], start, dims
 
 
-def _reach(world: World) -> np.ndarray:
+def _reach(state: WorldState, p: Parameters) -> np.ndarray:
     """Contact search radius (N,) m: radius + half the margin + the distance moved this step.
 
     Pairs that may close their gap within the step get a speculative row; the motion term is
     capped at the largest radius so one fast particle cannot inflate the grid.
     """
-    h = world.dt
-    speed = np.sqrt(((world._v + h * world.gravity) ** 2).sum(axis=1))
-    rmax = float(world._r.max())
-    return (
-        world._r + 0.5 * world.contact_margin * float(world._r.min()) + np.minimum(h * speed, rmax)
-    )
+    h = p.dt
+    speed = np.sqrt(((state.v + h * p.gravity) ** 2).sum(axis=1))
+    rmax = float(state.r.max())
+    return state.r + 0.5 * p.contact_margin * float(state.r.min()) + np.minimum(h * speed, rmax)
 
 
-def advance(world: World) -> StepStats:
-    """Advance ``world`` by one step of ``world.dt``; returns the step's stats."""
-    h = world.dt
-    bodies = world.bodies
+def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
+    """Advance ``state`` and ``bodies`` by one step of ``p.dt``; returns the step's stats."""
+    h = p.dt
     nb = len(bodies)
     bodies.load_center = bodies.center.copy()
-    if world.n_spheres == 0:
+    if state.n == 0:
         bodies.force[:] = 0.0
         bodies.torque[:] = 0.0
         bodies.integrate(h)
-        world.time += h
-        world.step_count += 1
-        return StepStats(world.step_count, world.time, 0, 0, 0.0, 0.0, 0.0)
+        state.time += h
+        state.step_count += 1
+        return StepStats(state.step_count, state.time, 0, 0, 0.0, 0.0, 0.0)
 
-    if not solver.all_finite(world._x, world._v, world._w):
-        _raise_non_finite(world, "before")
-    cells, start, dims = _sort(world)
-    slab_of_column = broadphase.slab_partition(start, dims, world.slabs)
+    if not solver.all_finite(state.x, state.v, state.w):
+        _raise_non_finite(state, "before")
+    cells, start, dims = _sort(state, p)
+    slab_of_column = broadphase.slab_partition(start, dims, p.slabs)
     n_slabs = int(slab_of_column.max()) + 1
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
-    reach = _reach(world)
-    pi, pj, pn, pg = broadphase.sphere_pairs(world._x, world._r, reach, cells, start, dims)
+    reach = _reach(state, p)
+    pi, pj, pn, pg = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     bi, bb, bn, bg = contacts.body_contacts(
-        world._x,
-        world._r,
-        2.0 * (reach - world._r) + world.dt * body_speed,
+        state.x,
+        state.r,
+        2.0 * (reach - state.r) + p.dt * body_speed,
         bodies.kind,
         bodies.center,
         bodies.rotations(),
         bodies.half,
         bodies.normal,
     )
-    invm = 1.0 / world._m
-    invI = 1.0 / (0.4 * world._m * world._r**2)
-    nu = world.poisson_ratio
-    estar = world.youngs_modulus / (2.0 * (1.0 - nu * nu))
-    upsilon = 1.0 / (1.0 + 4.0 * world.damping_steps)
+    invm = 1.0 / state.m
+    invI = 1.0 / (0.4 * state.m * state.r**2)
+    nu = p.poisson_ratio
+    estar = p.youngs_modulus / (2.0 * (1.0 - nu * nu))
+    upsilon = 1.0 / (1.0 + 4.0 * p.damping_steps)
     ci, cj, cd, gap, gstart = contacts.assemble(
         pi,
         pj,
@@ -94,13 +85,13 @@ def advance(world: World) -> StepStats:
         bg,
         slab,
         n_slabs,
-        world._x,
-        world._v,
-        world._r,
+        state.x,
+        state.v,
+        state.r,
         invm,
         invI,
-        world._mu,
-        world._mur,
+        state.mu,
+        state.mur,
         bodies.center,
         bodies.vel,
         bodies.ang,
@@ -109,11 +100,11 @@ def advance(world: World) -> StepStats:
         upsilon,
         estar,
     )
-    frac = _check_overlap(world, ci, cj, gap)
+    frac = _check_overlap(state, p, ci, cj, gap)
 
-    world._v += h * world.gravity
-    if world.warm_start:
-        lam = world._warm.lookup(world._id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
+    state.v += h * p.gravity
+    if p.warm_start:
+        lam = state.warm.lookup(state.id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
     else:
         lam = np.zeros((ci.shape[0], 7))
     threads = numba.get_num_threads()
@@ -125,30 +116,30 @@ def advance(world: World) -> StepStats:
             cj,
             cd,
             lam,
-            world._v,
-            world._w,
+            state.v,
+            state.w,
             invm,
             invI,
             gstart,
             n_slabs,
-            world.iterations,
-            world.warm_start,
+            p.iterations,
+            p.warm_start,
         )
     finally:
         numba.set_num_threads(threads)
-    world._warm.store(world._id, ci, cj, lam)
+    state.warm.store(state.id, ci, cj, lam)
     bodies.force, bodies.torque = contacts.body_loads(
-        ci, cj, cd, lam, world._x, bodies.center, nb, h
+        ci, cj, cd, lam, state.x, bodies.center, nb, h
     )
-    if solver.integrate(world._x, world._v, world._w, h):
-        _raise_non_finite(world, "after")
+    if solver.integrate(state.x, state.v, state.w, h):
+        _raise_non_finite(state, "after")
     bodies.integrate(h)
-    world.time += h
-    world.step_count += 1
+    state.time += h
+    state.step_count += 1
     touching = gap > 0.0
     return StepStats(
-        step=world.step_count,
-        time=world.time,
+        step=state.step_count,
+        time=state.time,
         contacts=int(touching.sum()),
         speculative=int((~touching).sum()),
         residual=float(residual),
@@ -157,24 +148,26 @@ def advance(world: World) -> StepStats:
     )
 
 
-def _check_overlap(world: World, ci: np.ndarray, cj: np.ndarray, gap: np.ndarray) -> np.ndarray:
+def _check_overlap(
+    state: WorldState, p: Parameters, ci: np.ndarray, cj: np.ndarray, gap: np.ndarray
+) -> np.ndarray:
     """Overlaps over the smaller radius (Nc,); DivergenceError when one exceeds max_overlap."""
-    rmin = np.where(cj >= 0, np.minimum(world._r[ci], world._r[np.maximum(cj, 0)]), world._r[ci])
+    rmin = np.where(cj >= 0, np.minimum(state.r[ci], state.r[np.maximum(cj, 0)]), state.r[ci])
     frac = np.maximum(gap, 0.0) / rmin
-    if frac.size == 0 or frac.max() <= world.max_overlap:
+    if frac.size == 0 or frac.max() <= p.max_overlap:
         return frac
     k = int(frac.argmax())
-    other = f"sphere {world._id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}"
+    other = f"sphere {state.id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}"
     raise DivergenceError(
         f"overlap {gap[k]:.4g} m = {frac[k]:.3g} of the smaller radius between sphere "
-        f"{world._id[ci[k]]} and {other} exceeds max_overlap = {world.max_overlap} at step "
-        f"{world.step_count + 1} (t = {world.time:.6g} s)"
+        f"{state.id[ci[k]]} and {other} exceeds max_overlap = {p.max_overlap} at step "
+        f"{state.step_count + 1} (t = {state.time:.6g} s)"
     )
 
 
-def _raise_non_finite(world: World, when: str) -> None:
-    bad = world._id[~np.all(np.isfinite(np.hstack([world._x, world._v, world._w])), axis=1)]
+def _raise_non_finite(state: WorldState, when: str) -> None:
+    bad = state.id[~np.all(np.isfinite(np.hstack([state.x, state.v, state.w])), axis=1)]
     raise DivergenceError(
-        f"non-finite sphere state (NaN or inf) {when} step {world.step_count + 1} "
-        f"(t = {world.time:.6g} s): {bad.size} spheres, ids {np.sort(bad)[:10].tolist()}"
+        f"non-finite sphere state (NaN or inf) {when} step {state.step_count + 1} "
+        f"(t = {state.time:.6g} s): {bad.size} spheres, ids {np.sort(bad)[:10].tolist()}"
     )

@@ -13,121 +13,83 @@ from typing import Any
 import numpy as np
 
 from dozerlab.ndem.bodies import Bodies, nonnegative, vec3
+from dozerlab.ndem.params import Parameters
+from dozerlab.ndem.persist import load_world, save_world
+from dozerlab.ndem.state import WorldState
 from dozerlab.ndem.stats import StepStats
 from dozerlab.ndem.stepper import advance
 from dozerlab.ndem.warmstart import WarmStart
 
-SPHERE_FIELDS = ("_x", "_v", "_w", "_r", "_m", "_mu", "_mur", "_id")
+
+def _parameter(name: str) -> Any:
+    """A World attribute reading and (validated) setting ``Parameters.name``."""
+
+    def get(self: World) -> Any:
+        return getattr(self.params, name)
+
+    def set_(self: World, value: Any) -> None:
+        self.params = self.params.with_(**{name: value})
+
+    return property(get, set_, doc=f"``Parameters.{name}`` (settable, validated).")
 
 
 class World:
     """A granular world. Units SI: m, s, kg, N; arrays float64.
 
-    Args:
-        dt: time step h in s (> 0).
-        iterations: PGS iterations per step (≥ 1).
-        gravity: (3,) m/s².
-        damping_steps: SPOOK damping time τ in steps (τ = damping_steps·dt, > 0).
-        youngs_modulus: E in Pa for the Hertz-mapped compliance; 0 makes contacts stiff.
-        poisson_ratio: ν in [0, 0.5).
-        max_overlap: overlap over the smaller radius beyond which a step raises DivergenceError.
-        density, friction, rolling_resistance: defaults of ``add_spheres`` (kg/m³, μ, μ_r).
-        wall_friction: default friction μ of planes and boxes.
-        contact_margin: near contacts with a gap below this fraction of the smallest radius are
-            solved too (speculatively), so fast particles stop at contact instead of overlapping.
-        slabs: slabs of the parallel sweep (more than the thread count balances the load; the
-            result depends on this number, never on the thread count).
-        warm_start: start each step's solve from the last step's multipliers of persisting
-            contacts.
+    The keyword arguments are the fields of :class:`~dozerlab.ndem.params.Parameters` (time
+    step, solver, material and contact settings, each documented there); those not given take
+    their defaults from the config schema. ``dt``, ``iterations`` and ``gravity`` may also be
+    passed by position. Every parameter is readable and settable as an attribute (validated).
+    The dynamic state (spheres, warm start, clock) is ``state``, a
+    :class:`~dozerlab.ndem.state.WorldState`; ``params`` is the current Parameters.
     """
 
     def __init__(
         self,
-        dt: float = 0.01,
-        iterations: int = 50,
-        gravity: tuple[float, float, float] = (0.0, 0.0, -9.81),
-        *,
-        damping_steps: float = 3.0,
-        youngs_modulus: float = 1.0e8,
-        poisson_ratio: float = 0.3,
-        max_overlap: float = 0.5,
-        density: float = 2600.0,
-        friction: float = 0.5,
-        rolling_resistance: float = 0.1,
-        wall_friction: float = 0.5,
-        contact_margin: float = 0.02,
-        slabs: int = 16,
-        warm_start: bool = True,
+        dt: float | None = None,
+        iterations: int | None = None,
+        gravity: object | None = None,
+        **params: Any,
     ) -> None:
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be > 0 s, got {dt!r}")
-        if not (np.isfinite(damping_steps) and damping_steps > 0):
-            raise ValueError(f"damping_steps must be > 0, got {damping_steps!r}")
-        if not 0.0 <= poisson_ratio < 0.5:
-            raise ValueError(f"poisson_ratio must be in [0, 0.5), got {poisson_ratio!r}")
-        if not (np.isfinite(max_overlap) and max_overlap > 0):
-            raise ValueError(f"max_overlap must be > 0, got {max_overlap!r}")
-        if not (np.isfinite(density) and density > 0):
-            raise ValueError(f"density must be > 0 kg/m³, got {density!r}")
-        if int(slabs) < 1:
-            raise ValueError(f"slabs must be >= 1, got {slabs!r}")
-        self.dt = float(dt)
-        self.iterations = iterations
-        self.gravity = vec3("gravity", gravity)
-        self.damping_steps = float(damping_steps)
-        self.youngs_modulus = nonnegative("youngs_modulus", youngs_modulus)
-        self.poisson_ratio = float(poisson_ratio)
-        self.max_overlap = float(max_overlap)
-        self.density = float(density)
-        self.friction = nonnegative("friction", friction)
-        self.rolling_resistance = nonnegative("rolling_resistance", rolling_resistance)
-        self.wall_friction = nonnegative("wall_friction", wall_friction)
-        self.contact_margin = nonnegative("contact_margin", contact_margin)
-        self.slabs = int(slabs)
-        self.warm_start = bool(warm_start)
-        self.time = 0.0
-        self.step_count = 0
+        positional = {"dt": dt, "iterations": iterations, "gravity": gravity}
+        self.params = Parameters(**{k: v for k, v in positional.items() if v is not None}, **params)
+        self.state = WorldState()
         self.bodies = Bodies()
-        self._warm = WarmStart()
         self.last_stats: StepStats | None = None
-        # Per-sphere storage in slot (spatially sorted) order; _id maps slot → sphere id.
-        self._x = np.zeros((0, 3))
-        self._v = np.zeros((0, 3))
-        self._w = np.zeros((0, 3))
-        self._r = np.zeros(0)
-        self._m = np.zeros(0)
-        self._mu = np.zeros(0)
-        self._mur = np.zeros(0)
-        self._id = np.zeros(0, dtype=np.int64)
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> World:
-        """A World from a validated config's ``solver`` and ``material`` sections."""
-        s, m = config.get("solver", {}), config.get("material", {})
-        return cls(
-            dt=s.get("dt", 0.01),
-            iterations=s.get("iterations", 50),
-            gravity=tuple(s.get("gravity", (0.0, 0.0, -9.81))),
-            damping_steps=s.get("damping_steps", 3.0),
-            max_overlap=s.get("max_overlap", 0.5),
-            density=m.get("density", 2600.0),
-            youngs_modulus=m.get("youngs_modulus", 1.0e8),
-            poisson_ratio=m.get("poisson_ratio", 0.3),
-            friction=m.get("friction", 0.5),
-            rolling_resistance=m.get("rolling_resistance", 0.1),
-            wall_friction=m.get("wall_friction", 0.5),
-        )
+        """A World from a config's ``solver`` and ``material`` sections (missing: defaults)."""
+        world = cls()
+        world.params = Parameters.from_config(config)
+        return world
+
+    dt = _parameter("dt")
+    iterations = _parameter("iterations")
+    gravity = _parameter("gravity")
+    method = _parameter("method")
+    tolerance = _parameter("tolerance")
+    damping_steps = _parameter("damping_steps")
+    youngs_modulus = _parameter("youngs_modulus")
+    poisson_ratio = _parameter("poisson_ratio")
+    max_overlap = _parameter("max_overlap")
+    density = _parameter("density")
+    friction = _parameter("friction")
+    rolling_resistance = _parameter("rolling_resistance")
+    wall_friction = _parameter("wall_friction")
+    contact_margin = _parameter("contact_margin")
+    slabs = _parameter("slabs")
+    warm_start = _parameter("warm_start")
 
     @property
-    def iterations(self) -> int:
-        """PGS iterations per step (settable, ≥ 1)."""
-        return self._iterations
+    def time(self) -> float:
+        """Simulated time in s."""
+        return self.state.time
 
-    @iterations.setter
-    def iterations(self, value: int) -> None:
-        if int(value) != value or int(value) < 1:
-            raise ValueError(f"iterations must be an integer >= 1, got {value!r}")
-        self._iterations = int(value)
+    @property
+    def step_count(self) -> int:
+        """Steps taken."""
+        return self.state.step_count
 
     # ---- spheres -------------------------------------------------------------------------
 
@@ -173,19 +135,17 @@ class World:
         )
         v = self._vectors("velocities", velocities, n)
         w = self._vectors("angular_velocities", angular_velocities, n)
-        ids = np.arange(len(self._id), len(self._id) + n, dtype=np.int64)
-        new = {
-            "_x": x,
-            "_v": v,
-            "_w": w,
-            "_r": r,
-            "_m": rho * 4.0 / 3.0 * np.pi * r**3,
-            "_mu": np.full(n, mu),
-            "_mur": np.full(n, mur),
-            "_id": ids,
-        }
-        for f in SPHERE_FIELDS:
-            setattr(self, f, np.concatenate([getattr(self, f), new[f]]))
+        ids = np.arange(self.n_spheres, self.n_spheres + n, dtype=np.int64)
+        self.state.append(
+            x=x,
+            v=v,
+            w=w,
+            r=r,
+            m=rho * 4.0 / 3.0 * np.pi * r**3,
+            mu=np.full(n, mu),
+            mur=np.full(n, mur),
+            id=ids,
+        )
         return ids
 
     @staticmethod
@@ -214,46 +174,42 @@ class World:
             if ids.size and (ids.min() < 0 or ids.max() >= self.n_spheres):
                 raise ValueError(f"ids must be in [0, {self.n_spheres - 1}]")
             drop[ids] = True
-        keep_slot = ~drop[self._id]
-        for f in SPHERE_FIELDS:
-            setattr(self, f, np.ascontiguousarray(getattr(self, f)[keep_slot]))
+        st = self.state
+        st.reorder(~drop[st.id])
         new_id = np.cumsum(~drop) - 1
-        self._id = new_id[self._id]
-        self._warm = WarmStart()
+        st.id = new_id[st.id]
+        st.warm = WarmStart()
         return np.flatnonzero(~drop)
 
     @property
     def n_spheres(self) -> int:
         """Number of spheres N."""
-        return int(self._id.shape[0])
-
-    def _public(self, a: np.ndarray) -> np.ndarray:
-        out = np.empty_like(a)
-        out[self._id] = a
-        return out
+        return self.state.n
 
     def _assign(self, name: str, value: object) -> None:
         a = self._vectors(name, value, self.n_spheres)
-        field = {"positions": "_x", "velocities": "_v", "angular_velocities": "_w"}[name]
-        getattr(self, field)[:] = a[self._id]
+        field = {"positions": "x", "velocities": "v", "angular_velocities": "w"}[name]
+        getattr(self.state, field)[:] = a[self.state.id]
 
     positions = property(
-        lambda self: self._public(self._x),
+        lambda self: self.state.public(self.state.x),
         lambda self, a: self._assign("positions", a),
         doc="Sphere centres (N, 3) m in id order (a copy; assign to set).",
     )
     velocities = property(
-        lambda self: self._public(self._v),
+        lambda self: self.state.public(self.state.v),
         lambda self, a: self._assign("velocities", a),
         doc="Sphere velocities (N, 3) m/s in id order (a copy; assign to set).",
     )
     angular_velocities = property(
-        lambda self: self._public(self._w),
+        lambda self: self.state.public(self.state.w),
         lambda self, a: self._assign("angular_velocities", a),
         doc="Sphere angular velocities (N, 3) rad/s in id order (a copy; assign to set).",
     )
-    radii = property(lambda self: self._public(self._r), doc="Radii (N,) m in id order.")
-    masses = property(lambda self: self._public(self._m), doc="Masses (N,) kg in id order.")
+    radii = property(lambda self: self.state.public(self.state.r), doc="Radii (N,) m in id order.")
+    masses = property(
+        lambda self: self.state.public(self.state.m), doc="Masses (N,) kg in id order."
+    )
 
     def set_sphere_state(
         self,
@@ -266,12 +222,11 @@ class World:
         ids = np.asarray(ids, dtype=np.int64).ravel()
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_spheres):
             raise ValueError(f"ids must be in [0, {self.n_spheres - 1}]")
-        slot = np.empty(self.n_spheres, dtype=np.int64)
-        slot[self._id] = np.arange(self.n_spheres)
+        slot = self.state.slots()
         for name, value, arr in (
-            ("positions", positions, self._x),
-            ("velocities", velocities, self._v),
-            ("angular_velocities", angular_velocities, self._w),
+            ("positions", positions, self.state.x),
+            ("velocities", velocities, self.state.v),
+            ("angular_velocities", angular_velocities, self.state.w),
         ):
             if value is not None:
                 arr[slot[ids]] = self._vectors(name, value, ids.size)
@@ -368,23 +323,21 @@ class World:
         if int(n) != n or n < 1:
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         for _ in range(int(n)):
-            self.last_stats = advance(self)
+            self.last_stats = advance(self.state, self.bodies, self.params)
         return self.last_stats
 
     # ---- persistence ---------------------------------------------------------------------
 
     def save(self, path: str | Path) -> None:
         """Write the whole state (spheres, bodies, warm start, parameters) to a ``.npz``."""
-        from dozerlab.ndem.state import save_world
-
-        save_world(self, path)
+        save_world(path, self.params, self.state, self.bodies)
 
     @classmethod
     def load(cls, path: str | Path) -> World:
         """A World read back from :meth:`save`'s file."""
-        from dozerlab.ndem.state import load_world
-
-        return load_world(path)
+        world = cls()
+        world.params, world.state, world.bodies = load_world(path)
+        return world
 
     def __repr__(self) -> str:
         return (

@@ -256,6 +256,8 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         dt,
         int(b["iterations"]),
         solver["gravity"],
+        method=solver["method"],
+        tolerance=solver["tolerance"],
         damping_steps=solver["damping_steps"],
         youngs_modulus=mat["youngs_modulus"],
         poisson_ratio=mat["poisson_ratio"],
