@@ -161,7 +161,6 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
 
     s = config["sampling"]
     every, vtk_every = int(s["every"]), int(s["vtk_every"])
-    iterations = int(config["solver"]["iterations"])
     world, _handles = make_world(bed, config)
     blade = add_blade(world, traj.position[0], config)
     # the blade only translates, so (centre − tip) is constant: torque about the tip as it was
@@ -193,7 +192,7 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
             dt_wall = wallclock.perf_counter() - t0
             stats.steps += 1
             stats.step_time += dt_wall
-            stats.contact_iterations += st.contacts * iterations
+            stats.contact_iterations += st.contacts * st.iterations
             window.append((dt_wall, st.contacts, st.residual, st.max_overlap))
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()

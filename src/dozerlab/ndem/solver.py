@@ -1,4 +1,4 @@
-"""Projected Gauss-Seidel on the SPOOK contact rows, swept in parallel over slabs.
+"""Projected Gauss-Seidel (optionally with NNCG momentum) on the SPOOK rows, swept in parallel.
 
 Multipliers ``lam`` (Nc, 7) are impulses (N·s): the normal one, the friction impulse as a world
 vector in the tangent plane (3) and the rolling-resistance angular impulse (3). Per contact the
@@ -176,29 +176,91 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
 
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def pgs(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm):
-    """Run ``iterations`` PGS sweeps; returns the RMS normal-row residual of the last (m/s).
+def solve(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, method, tolerance):
+    """Sweep the contacts until the residual is below ``tolerance`` or ``iterations`` sweeps ran.
 
-    With ``warm`` the incoming ``lam`` are first applied to ``v``/``w`` (a warm start);
-    otherwise ``lam`` must be zero.
+    ``method`` is an index into :data:`dozerlab.ndem.params.METHODS`: 0 plain PGS; 1 NNCG
+    (Silcowitz, Niebe & Erleben 2010), which after each sweep adds β·p to the multipliers, p
+    the previous search direction and β = |Δλ_k|² / |Δλ_{k-1}|² (Fletcher–Reeves on the sweep's
+    step Δλ), restarting (β = 0) when β > 1; the last sweep adds nothing, so the multipliers
+    returned are projected ones. The velocities follow λ through u = M⁻¹Jᵀp per sphere,
+    updated from each sweep's velocity change, so the momentum costs no pass over the rows.
+    Returns the RMS normal-row update of the last sweep (m/s) and the sweeps run. With
+    ``warm`` the incoming ``lam`` are first applied to ``v``/``w``; otherwise ``lam`` must be
+    zero. Sums are taken per slab task and then in slab order, so the result does not depend
+    on the thread count.
     """
     nc = ci.shape[0]
+    n = v.shape[0]
     if warm:
         for k in range(nc):
             _apply(k, ci, cj, cd, lam, v, w, invm, invI)
+    nncg = method == 1
+    mc = nc if nncg else 0
+    ms = n if nncg else 0
+    prev = np.empty((mc, 7))  # λ before the sweep
+    p = np.zeros((mc, 7))  # search direction in λ
+    vw_prev = np.empty((ms, 6))  # v, w before the sweep
+    u = np.zeros((ms, 6))  # M⁻¹Jᵀp: the search direction in velocities
+    res_part = np.zeros(n_slabs)
+    step_part = np.zeros(n_slabs)
     res = 0.0
-    for _ in range(iterations):
-        res = 0.0
+    step_norm_old = 0.0
+    threshold = tolerance * tolerance * max(nc, 1)
+    done = 0
+    while done < iterations:
+        if nncg:
+            for i in prange(n):
+                for a in range(3):
+                    vw_prev[i, a] = v[i, a]
+                    vw_prev[i, 3 + a] = w[i, a]
         for phase in range(2):
             for m in prange((n_slabs - phase + 1) // 2):
                 s = 2 * np.int64(m) + phase  # prange indices may be unsigned
-                for k in range(start[s], start[s + 1]):
-                    res += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
-                if s < n_slabs - 1:
-                    g = n_slabs + s
+                r = 0.0
+                d2 = 0.0
+                for g in (s, n_slabs + s):
+                    if g == 2 * n_slabs - 1:
+                        continue  # the last slab has no boundary group
                     for k in range(start[g], start[g + 1]):
-                        res += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
-    return np.sqrt(res / max(nc, 1))
+                        if nncg:
+                            for a in range(7):
+                                prev[k, a] = lam[k, a]
+                        r += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
+                        if nncg:
+                            for a in range(7):
+                                d = lam[k, a] - prev[k, a]
+                                d2 += d * d
+                res_part[s] = r
+                step_part[s] = d2
+        done += 1
+        res = 0.0
+        step_norm = 0.0
+        for s in range(n_slabs):
+            res += res_part[s]
+            step_norm += step_part[s]
+        if tolerance > 0.0 and res <= threshold:
+            break
+        if not nncg or done == iterations:
+            continue
+        beta = 0.0
+        if step_norm_old > 0.0 and step_norm <= step_norm_old:
+            beta = step_norm / step_norm_old
+        step_norm_old = step_norm
+        for k in prange(nc):
+            for a in range(7):
+                q = beta * p[k, a]
+                p[k, a] = q + lam[k, a] - prev[k, a]
+                lam[k, a] += q
+        for i in prange(n):
+            for a in range(3):
+                q = beta * u[i, a]
+                u[i, a] = q + v[i, a] - vw_prev[i, a]
+                v[i, a] += q
+                q = beta * u[i, 3 + a]
+                u[i, 3 + a] = q + w[i, a] - vw_prev[i, 3 + a]
+                w[i, a] += q
+    return np.sqrt(res / max(nc, 1)), done
 
 
 @njit(cache=True)

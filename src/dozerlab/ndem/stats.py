@@ -19,7 +19,8 @@ class StepStats:
     the contact margin) also handed to the solver; residual: RMS of the normal rows' last PGS
     update, in m/s (→ 0 as the solver converges); max_overlap: largest overlap in m and
     max_overlap_fraction the largest overlap over the smaller radius, at the start of the step;
-    step and time (s) after the step.
+    step and time (s) after the step; iterations: solver sweeps run (at most
+    ``solver.iterations``; fewer when ``solver.tolerance`` stopped the solve).
     """
 
     step: int
@@ -29,3 +30,4 @@ class StepStats:
     residual: float
     max_overlap: float
     max_overlap_fraction: float
+    iterations: int = 0

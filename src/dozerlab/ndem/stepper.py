@@ -7,7 +7,7 @@ import numpy as np
 
 from dozerlab.ndem import broadphase, contacts, solver
 from dozerlab.ndem.bodies import Bodies
-from dozerlab.ndem.params import Parameters
+from dozerlab.ndem.params import METHODS, Parameters
 from dozerlab.ndem.state import WorldState
 from dozerlab.ndem.stats import DivergenceError, StepStats
 
@@ -111,7 +111,7 @@ def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     if ci.shape[0] < PARALLEL_MIN_CONTACTS:
         numba.set_num_threads(1)
     try:
-        residual = solver.pgs(
+        residual, sweeps = solver.solve(
             ci,
             cj,
             cd,
@@ -124,6 +124,8 @@ def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             n_slabs,
             p.iterations,
             p.warm_start,
+            METHODS.index(p.method),
+            p.tolerance,
         )
     finally:
         numba.set_num_threads(threads)
@@ -145,6 +147,7 @@ def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         residual=float(residual),
         max_overlap=float(gap.max(initial=0.0)),
         max_overlap_fraction=float(frac.max(initial=0.0)),
+        iterations=int(sweeps),
     )
 
 

@@ -1,0 +1,121 @@
+"""The contact solver: NNCG reaches PGS's answer, the tolerance stop, thread independence."""
+
+import numba
+import numpy as np
+import pytest
+
+from dozerlab.ndem import World
+
+R = 0.05
+
+
+def _stack() -> World:
+    w = World()
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R + 2 * R * k] for k in range(8)], radius=R)
+    return w
+
+
+def _pile() -> World:
+    w = World()
+    w.add_plane(friction=0.5)
+    for x, nx in ((-0.2, 1.0), (0.6, -1.0)):
+        w.add_plane(point=(x, 0.0, 0.0), normal=(nx, 0.0, 0.0))
+    rng = np.random.default_rng(3)
+    k = np.arange(4)
+    grid = np.stack(np.meshgrid(k, k, k, indexing="ij"), -1).reshape(-1, 3) * 2.05 * R
+    w.add_spheres(grid + [0.1 + R, -0.15, R + 0.001], radius=R * rng.uniform(0.9, 1.0, len(grid)))
+    return w
+
+
+def _push() -> World:
+    w = _pile()
+    w.step(40)  # settle
+    blade = w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True)
+    w.set_velocity(blade, (0.5, 0.0, 0.0))
+    w.step(10)
+    return w
+
+
+SCENES = {"stack": _stack, "pile": _pile, "push": _push}
+
+
+def _converged(scene: str, method: str) -> World:
+    """The scene with its next step solved to a residual of 1e-8 m/s."""
+    w = SCENES[scene]()
+    w.step(5)  # warm contacts
+    w.method, w.iterations, w.tolerance = method, 50000, 1e-8
+    w.step()
+    return w
+
+
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_nncg_converges_to_the_multipliers_of_pgs(scene):
+    pgs, nncg = _converged(scene, "pgs"), _converged(scene, "nncg")
+    assert pgs.last_stats.residual <= 1e-8 and nncg.last_stats.residual <= 1e-8
+    assert nncg.last_stats.iterations < pgs.last_stats.iterations
+    # The normal multipliers are unique (the compliance makes their block positive definite);
+    # friction and rolling ones may not be (two contacts can share one sphere's rolling load),
+    # so those are compared by what they do: the velocities and the loads on the bodies.
+    lam_p, lam_n = pgs.state.warm.lam[:, 0], nncg.state.warm.lam[:, 0]
+    assert lam_p.shape == lam_n.shape and lam_p.max() > 0
+    np.testing.assert_allclose(lam_n, lam_p, rtol=0, atol=1e-4 * lam_p.max())
+    np.testing.assert_allclose(nncg.velocities, pgs.velocities, rtol=0, atol=1e-6)  # m/s
+    np.testing.assert_allclose(nncg.angular_velocities, pgs.angular_velocities, rtol=0, atol=1e-4)
+    scale = np.abs(pgs.force_on(0)).max()
+    for body in range(len(pgs.bodies)):
+        np.testing.assert_allclose(nncg.force_on(body), pgs.force_on(body), atol=1e-4 * scale)
+
+
+@pytest.mark.parametrize("method", ["pgs", "nncg"])
+def test_tolerance_stops_the_solve(method):
+    w = _push()
+    w.method, w.iterations, w.tolerance = method, 5000, 1e-4
+    stats = w.step()
+    assert 1 < stats.iterations < 5000
+    assert stats.residual <= 1e-4
+    w.tolerance = 0.0
+    assert w.step().iterations == 5000  # no tolerance: the cap
+
+
+def test_fewer_sweeps_with_nncg_for_the_same_residual():
+    sweeps = {}
+    for method in ("pgs", "nncg"):
+        w = _push()
+        w.method, w.iterations, w.tolerance = method, 5000, 1e-5
+        sweeps[method] = w.step().iterations
+    assert sweeps["nncg"] < 0.8 * sweeps["pgs"]
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs NUMBA_NUM_THREADS >= 2")
+@pytest.mark.parametrize("method", ["pgs", "nncg"])
+def test_thread_count_changes_nothing(monkeypatch, method):
+    monkeypatch.setattr("dozerlab.ndem.stepper.PARALLEL_MIN_CONTACTS", 0)  # sweep in parallel
+    monkeypatch.setattr("dozerlab.ndem.stepper.PARALLEL_MIN_SPHERES", 0)
+    runs = []
+    threads = numba.get_num_threads()
+    try:
+        for n in (1, 2):
+            numba.set_num_threads(n)
+            w = _pile()
+            w.slabs, w.method, w.tolerance, w.iterations = 4, method, 1e-4, 300
+            w.step(10)
+            blade = w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True)
+            w.set_velocity(blade, (0.5, 0.0, 0.0))
+            runs.append((w.step(15), w.positions, w.force_on(blade)))
+    finally:
+        numba.set_num_threads(threads)
+    (s1, x1, f1), (s2, x2, f2) = runs
+    assert s1.iterations == s2.iterations
+    np.testing.assert_allclose(x2, x1, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(f2, f1, rtol=1e-9)
+
+
+def test_method_and_tolerance_are_validated():
+    with pytest.raises(ValueError, match="method"):
+        World(method="cg")
+    with pytest.raises(ValueError, match="tolerance"):
+        World(tolerance=-1.0)
+    w = World()
+    with pytest.raises(ValueError, match="method"):
+        w.method = "sor"
