@@ -8,7 +8,7 @@ rows' constants live in one (Nc, NCOL) float64 table, laid out per contact for c
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 PLANE = 0
 BOX = 1
@@ -66,16 +66,17 @@ def _body_test(x, r, margin, kind, c, rot, ext, nrm):
     )
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
 
-    Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m.
+    Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m,
+    ordered by slot, then body.
     """
     n = pos.shape[0]
     nb = kind.shape[0]
     counts = np.zeros(n + 1, dtype=np.int64)
-    for i in range(n):
+    for i in prange(n):
         c = 0
         for b in range(nb):
             g, _, _, _ = _body_test(
@@ -90,7 +91,7 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     sb = np.empty(m, dtype=np.int64)
     nrm = np.empty((m, 3))
     gap = np.empty(m)
-    for i in range(n):
+    for i in prange(n):
         k = off[i]
         for b in range(nb):
             g, n0, n1, n2 = _body_test(
@@ -105,7 +106,7 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     return si, sb, nrm, gap
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def assemble(
     pi,
     pj,
@@ -163,7 +164,7 @@ def assemble(
     cj = np.empty(mt, dtype=np.int64)
     cd = np.zeros((mt, NCOL))
     gap = np.empty(mt)
-    for k in range(mt):
+    for k in prange(mt):
         s = src[k]
         if s < mp:
             i, j, g = pi[s], pj[s], pg[s]
@@ -175,26 +176,27 @@ def assemble(
             cd[k, MUR] = rstar * 0.5 * (mur[i] + mur[j])
             imj, iij = invm[j], invI[j]
         else:
-            s -= mp
-            i, b, g = bi[s], bb[s], bg[s]
+            t = s - mp
+            i, b, g = bi[t], bb[t], bg[t]
             j = -(b + 1)
             for a in range(3):
-                cd[k, N0 + a] = bn[s, a]
+                cd[k, N0 + a] = bn[t, a]
             rstar = radii[i]
             cd[k, MU] = bmu[b]
             cd[k, MUR] = rstar * mur[i]
             imj, iij = 0.0, 0.0
-            ri = radii[i] - 0.5 * max(g, 0.0)
+            rib = radii[i] - 0.5 * max(g, 0.0)
             # Velocity of the body's material point at the contact.
-            arm = np.empty(3)
-            for a in range(3):
-                arm[a] = pos[i, a] - ri * bn[s, a] - bpos[b, a]
-            w = bang[b]
-            cd[k, VB + 0] = bvel[b, 0] + w[1] * arm[2] - w[2] * arm[1]
-            cd[k, VB + 1] = bvel[b, 1] + w[2] * arm[0] - w[0] * arm[2]
-            cd[k, VB + 2] = bvel[b, 2] + w[0] * arm[1] - w[1] * arm[0]
-            for a in range(3):
-                cd[k, WB + a] = w[a]
+            arm0 = pos[i, 0] - rib * bn[t, 0] - bpos[b, 0]
+            arm1 = pos[i, 1] - rib * bn[t, 1] - bpos[b, 1]
+            arm2 = pos[i, 2] - rib * bn[t, 2] - bpos[b, 2]
+            w0, w1, w2 = bang[b, 0], bang[b, 1], bang[b, 2]
+            cd[k, VB + 0] = bvel[b, 0] + w1 * arm2 - w2 * arm1
+            cd[k, VB + 1] = bvel[b, 1] + w2 * arm0 - w0 * arm2
+            cd[k, VB + 2] = bvel[b, 2] + w0 * arm1 - w1 * arm0
+            cd[k, WB + 0] = w0
+            cd[k, WB + 1] = w1
+            cd[k, WB + 2] = w2
         ci[k] = i
         cj[k] = j
         gap[k] = g

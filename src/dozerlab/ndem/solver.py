@@ -263,24 +263,24 @@ def solve(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, m
     return np.sqrt(res / max(nc, 1)), done
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def integrate(x, v, w, h):
     """Advance positions by h·v (symplectic Euler); returns True when any value is not finite."""
-    bad = 0
-    for i in range(x.shape[0]):
+    bad = np.zeros(x.shape[0], dtype=np.bool_)
+    for i in prange(x.shape[0]):
         for a in range(3):
             x[i, a] += h * v[i, a]
             if not (np.isfinite(x[i, a]) and np.isfinite(v[i, a]) and np.isfinite(w[i, a])):
-                bad += 1
-    return bad > 0
+                bad[i] = True
+    return bad.any()
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def all_finite(x, v, w):
     """True when every position, velocity and angular velocity is finite."""
-    bad = 0
-    for i in range(x.shape[0]):
+    bad = np.zeros(x.shape[0], dtype=np.bool_)
+    for i in prange(x.shape[0]):
         for a in range(3):
             if not (np.isfinite(x[i, a]) and np.isfinite(v[i, a]) and np.isfinite(w[i, a])):
-                bad += 1
-    return bad == 0
+                bad[i] = True
+    return not bad.any()

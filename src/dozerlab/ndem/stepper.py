@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import numba
 import numpy as np
 
@@ -11,8 +14,22 @@ from dozerlab.ndem.params import METHODS, Parameters
 from dozerlab.ndem.state import WorldState
 from dozerlab.ndem.stats import DivergenceError, StepStats
 
-# Below this many contacts a sweep is too short to pay for the per-phase thread barriers.
+# Below this many contacts a sweep is too short to pay for the per-phase thread barriers;
+# below this many spheres the rest of a step (detection, assembly, warm start, integration).
 PARALLEL_MIN_CONTACTS = 4096
+PARALLEL_MIN_SPHERES = 2048
+
+
+@contextmanager
+def _serial_if(small: bool) -> Iterator[None]:
+    """Run the block on one numba thread when ``small``, then restore the thread count."""
+    threads = numba.get_num_threads()
+    if small:
+        numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(threads)
 
 
 def _sort(state: WorldState, p: Parameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -39,6 +56,11 @@ def _reach(state: WorldState, p: Parameters) -> np.ndarray:
 
 def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     """Advance ``state`` and ``bodies`` by one step of ``p.dt``; returns the step's stats."""
+    with _serial_if(state.n < PARALLEL_MIN_SPHERES):
+        return _advance(state, bodies, p)
+
+
+def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     h = p.dt
     nb = len(bodies)
     bodies.load_center = bodies.center.copy()
@@ -107,10 +129,7 @@ def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         lam = state.warm.lookup(state.id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
     else:
         lam = np.zeros((ci.shape[0], 7))
-    threads = numba.get_num_threads()
-    if ci.shape[0] < PARALLEL_MIN_CONTACTS:
-        numba.set_num_threads(1)
-    try:
+    with _serial_if(ci.shape[0] < PARALLEL_MIN_CONTACTS):
         residual, sweeps = solver.solve(
             ci,
             cj,
@@ -127,8 +146,6 @@ def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             METHODS.index(p.method),
             p.tolerance,
         )
-    finally:
-        numba.set_num_threads(threads)
     state.warm.store(state.id, ci, cj, lam)
     bodies.force, bodies.torque = contacts.body_loads(
         ci, cj, cd, lam, state.x, bodies.center, nb, h

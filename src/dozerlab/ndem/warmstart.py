@@ -9,7 +9,7 @@ with the sign flipped. Storage is compressed by ``lo`` (counting sort, no compar
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(cache=True, inline="always")
@@ -24,12 +24,12 @@ def _name(ids, ci, cj, k):
     return b, a, -1.0
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def _lookup(ids, ci, cj, normals, start, hi_store, lam_store):
     nc = ci.shape[0]
     lam = np.zeros((nc, 7))
     n_ids = start.shape[0] - 1
-    for k in range(nc):
+    for k in prange(nc):
         lo, hi, sign = _name(ids, ci, cj, k)
         if lo >= n_ids:
             continue
