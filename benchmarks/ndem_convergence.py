@@ -5,7 +5,7 @@
 
 Drives the workflow's simulation (the config's solver settings) to ``--at`` of the trajectory,
 then solves that one step again from the same state: with PGS for ``--reference`` iterations
-(the reference blade force), and with each method for a list of iteration counts and of
+(ω = 1; the reference blade force), and with each method for a list of iteration counts and of
 tolerances. Prints, per method side by side, the RMS normal-row residual (m/s), the blade
 force's relative error against the reference and the sweeps and seconds the step took. Not a
 test: the seconds depend on the machine and its load.
@@ -23,9 +23,13 @@ from tqdm import tqdm
 
 
 def solve_once(world, blade: int, method: str, iterations: int, tolerance: float):  # type: ignore[no-untyped-def]
-    """One step of a copy of ``world``: (stats, blade force (3,) N, seconds)."""
+    """One step of a copy of ``world``: (stats, blade force (3,) N, seconds).
+
+    ``method`` is ``pgs``, ``nncg`` or either with ``@OMEGA`` (a relaxation factor)."""
     w = copy.deepcopy(world)
-    w.method, w.iterations, w.tolerance = method, iterations, tolerance
+    name, _, omega = method.partition("@")
+    w.method, w.iterations, w.tolerance = name, iterations, tolerance
+    w.relaxation = float(omega or 1.0)
     t0 = time.perf_counter()
     stats = w.step()
     return stats, w.force_on(blade), time.perf_counter() - t0
@@ -40,7 +44,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reference", type=int, default=1000, help="PGS iterations of the reference")
     ap.add_argument("--iterations", type=int, nargs="+", default=[10, 25, 50, 100, 200, 400])
     ap.add_argument("--tolerances", type=float, nargs="+", default=[1e-3, 3e-4, 1e-4, 3e-5])
-    ap.add_argument("--methods", nargs="+", default=["pgs", "nncg"])
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        default=["pgs", "pgs@1.5", "nncg"],
+        help="solvers side by side: pgs, nncg, or either @OMEGA for a relaxation factor",
+    )
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
 
@@ -63,7 +72,7 @@ def main(argv: list[str] | None = None) -> None:
         world.step()
     world.set_velocity(blade, traj.velocity[steps])
 
-    ref, f_ref, t_ref = solve_once(world, blade, "pgs", args.reference, 0.0)
+    ref, f_ref, t_ref = solve_once(world, blade, "pgs@1.0", args.reference, 0.0)
     print(
         f"bed {args.bed}: {world.n_spheres} spheres, step {steps} of {traj.steps}, {threads} threads"
     )

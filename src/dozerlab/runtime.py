@@ -33,11 +33,11 @@ def set_threads(n: int) -> int:
 
     n = min(n, numba.config.NUMBA_NUM_THREADS)
     numba.set_num_threads(n)
-    try:
-        import torch
-    except ImportError:
-        return n
-    torch.set_num_threads(n)
+    # torch reads OMP_NUM_THREADS when first imported; only an already imported one is told,
+    # so jobs that never use torch do not pay for importing it.
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)
     return n
 
 

@@ -1,4 +1,4 @@
-"""The contact solver: NNCG reaches PGS's answer, the tolerance stop, thread independence."""
+"""The contact solver: NNCG and over-relaxed PGS reach PGS's answer, the tolerance stop, threads."""
 
 import numba
 import numpy as np
@@ -40,18 +40,19 @@ def _push() -> World:
 SCENES = {"stack": _stack, "pile": _pile, "push": _push}
 
 
-def _converged(scene: str, method: str) -> World:
+def _converged(scene: str, method: str, relaxation: float) -> World:
     """The scene with its next step solved to a residual of 1e-8 m/s."""
     w = SCENES[scene]()
     w.step(5)  # warm contacts
-    w.method, w.iterations, w.tolerance = method, 50000, 1e-8
+    w.method, w.relaxation, w.iterations, w.tolerance = method, relaxation, 50000, 1e-8
     w.step()
     return w
 
 
 @pytest.mark.parametrize("scene", sorted(SCENES))
-def test_nncg_converges_to_the_multipliers_of_pgs(scene):
-    pgs, nncg = _converged(scene, "pgs"), _converged(scene, "nncg")
+@pytest.mark.parametrize(("method", "relaxation"), [("nncg", 1.0), ("pgs", 1.5)])
+def test_faster_methods_converge_to_the_multipliers_of_pgs(scene, method, relaxation):
+    pgs, nncg = _converged(scene, "pgs", 1.0), _converged(scene, method, relaxation)
     assert pgs.last_stats.residual <= 1e-8 and nncg.last_stats.residual <= 1e-8
     assert nncg.last_stats.iterations < pgs.last_stats.iterations
     # The normal multipliers are unique (the compliance makes their block positive definite);
@@ -59,12 +60,12 @@ def test_nncg_converges_to_the_multipliers_of_pgs(scene):
     # so those are compared by what they do: the velocities and the loads on the bodies.
     lam_p, lam_n = pgs.state.warm.lam[:, 0], nncg.state.warm.lam[:, 0]
     assert lam_p.shape == lam_n.shape and lam_p.max() > 0
-    np.testing.assert_allclose(lam_n, lam_p, rtol=0, atol=1e-4 * lam_p.max())
-    np.testing.assert_allclose(nncg.velocities, pgs.velocities, rtol=0, atol=1e-6)  # m/s
+    np.testing.assert_allclose(lam_n, lam_p, rtol=0, atol=5e-4 * lam_p.max())
+    np.testing.assert_allclose(nncg.velocities, pgs.velocities, rtol=0, atol=1e-5)  # m/s
     np.testing.assert_allclose(nncg.angular_velocities, pgs.angular_velocities, rtol=0, atol=1e-4)
     scale = np.abs(pgs.force_on(0)).max()
     for body in range(len(pgs.bodies)):
-        np.testing.assert_allclose(nncg.force_on(body), pgs.force_on(body), atol=1e-4 * scale)
+        np.testing.assert_allclose(nncg.force_on(body), pgs.force_on(body), atol=5e-4 * scale)
 
 
 @pytest.mark.parametrize("method", ["pgs", "nncg"])
@@ -78,13 +79,14 @@ def test_tolerance_stops_the_solve(method):
     assert w.step().iterations == 5000  # no tolerance: the cap
 
 
-def test_fewer_sweeps_with_nncg_for_the_same_residual():
+def test_fewer_sweeps_with_nncg_or_over_relaxation_for_the_same_residual():
     sweeps = {}
-    for method in ("pgs", "nncg"):
+    for method, relaxation in (("pgs", 1.0), ("nncg", 1.0), ("pgs", 1.5)):
         w = _push()
-        w.method, w.iterations, w.tolerance = method, 5000, 1e-5
-        sweeps[method] = w.step().iterations
-    assert sweeps["nncg"] < 0.8 * sweeps["pgs"]
+        w.method, w.relaxation, w.iterations, w.tolerance = method, relaxation, 5000, 1e-5
+        sweeps[method, relaxation] = w.step().iterations
+    assert sweeps["nncg", 1.0] < 0.8 * sweeps["pgs", 1.0]
+    assert sweeps["pgs", 1.5] < 0.8 * sweeps["pgs", 1.0]
 
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs NUMBA_NUM_THREADS >= 2")
@@ -99,6 +101,7 @@ def test_thread_count_changes_nothing(monkeypatch, method):
             numba.set_num_threads(n)
             w = _pile()
             w.slabs, w.method, w.tolerance, w.iterations = 4, method, 1e-4, 300
+            w.relaxation = 1.0 if method == "nncg" else 1.5
             w.step(10)
             blade = w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True)
             w.set_velocity(blade, (0.5, 0.0, 0.0))
@@ -116,6 +119,8 @@ def test_method_and_tolerance_are_validated():
         World(method="cg")
     with pytest.raises(ValueError, match="tolerance"):
         World(tolerance=-1.0)
+    with pytest.raises(ValueError, match="relaxation"):
+        World(relaxation=2.0)
     w = World()
     with pytest.raises(ValueError, match="method"):
         w.method = "sor"

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import logging
 import re
-import tempfile
 import time as wallclock
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -229,17 +228,16 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
 def _plots_and_metrics(
     out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any
 ) -> None:
-    """Write the store's plots to ``plots_dir`` and log them and the metrics to the MLflow ``run``."""
+    """Log the metrics to the MLflow ``run``; with ``plots_dir``, plot the store there and log
+    the plots too. Plots are drawn only on request: the report draws its own from the store."""
+    if run is not None:
+        import mlflow
+
+        mlflow.log_metrics(metrics)
+    if plots_dir is None:
+        return
     from dozerlab.fields.plots import plot_run
 
-    if run is None and plots_dir is None:
-        return
-    ds = open_store(out)
-    with tempfile.TemporaryDirectory() as tmp:
-        target = Path(plots_dir) if plots_dir is not None else Path(tmp)
-        plot_run(ds, target, animation=False)
-        if run is not None:
-            import mlflow
-
-            mlflow.log_metrics(metrics)
-            mlflow.log_artifacts(str(target), artifact_path="plots")
+    plot_run(open_store(out), Path(plots_dir), animation=False)
+    if run is not None:
+        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")

@@ -19,7 +19,16 @@ from dozerlab.ndem.bodies import nonnegative, vec3
 # The solver's methods; the order is their numeric code in the kernels.
 METHODS = ("pgs", "nncg")
 
-SOLVER_KEYS = ("dt", "iterations", "gravity", "damping_steps", "max_overlap", "method", "tolerance")
+SOLVER_KEYS = (
+    "dt",
+    "iterations",
+    "gravity",
+    "damping_steps",
+    "max_overlap",
+    "method",
+    "relaxation",
+    "tolerance",
+)
 MATERIAL_KEYS = (
     "density",
     "youngs_modulus",
@@ -51,7 +60,8 @@ class Parameters:
     """What a World is: its time step, solver and contact-model settings (SI units).
 
     dt: time step h in s (> 0); iterations: solver sweeps per step at most (≥ 1); method:
-    ``pgs`` or ``nncg`` (:data:`METHODS`); tolerance: RMS normal-row update in m/s below which a
+    ``pgs`` or ``nncg`` (:data:`METHODS`); relaxation: ω scaling every row update, in (0, 2)
+    (> 1: over-relaxation, projected SOR); tolerance: RMS normal-row update in m/s below which a
     step's solve stops early (0: always run ``iterations``); gravity (3,) m/s²; damping_steps:
     SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
     poisson_ratio ν in [0, 0.5); max_overlap: overlap over the smaller radius that raises
@@ -65,6 +75,7 @@ class Parameters:
     iterations: int = field(default_factory=_schema("iterations"))
     gravity: np.ndarray = field(default_factory=_schema("gravity"))
     method: str = field(default_factory=_schema("method"))
+    relaxation: float = field(default_factory=_schema("relaxation"))
     tolerance: float = field(default_factory=_schema("tolerance"))
     damping_steps: float = field(default_factory=_schema("damping_steps"))
     youngs_modulus: float = field(default_factory=_schema("youngs_modulus"))
@@ -89,6 +100,8 @@ class Parameters:
             raise ValueError(f"iterations must be an integer >= 1, got {self.iterations!r}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if not 0.0 < self.relaxation < 2.0:
+            raise ValueError(f"relaxation must be in (0, 2), got {self.relaxation!r}")
         if not (np.isfinite(damping) and damping > 0):
             raise ValueError(f"damping_steps must be > 0, got {damping!r}")
         if not 0.0 <= pr < 0.5:
@@ -101,6 +114,7 @@ class Parameters:
             raise ValueError(f"slabs must be >= 1, got {self.slabs!r}")
         put("dt", float(dt))
         put("iterations", int(self.iterations))
+        put("relaxation", float(self.relaxation))
         put("tolerance", nonnegative("tolerance", self.tolerance))
         put("gravity", vec3("gravity", self.gravity))
         put("damping_steps", float(damping))

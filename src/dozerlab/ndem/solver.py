@@ -20,8 +20,9 @@ from dozerlab.ndem.contacts import KN, KR, KT, MU, MUR, N0, RI, RJ, SIG, VB, WB,
 
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
-def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
-    """One PGS update of contact k; returns the squared normal-row residual (m²/s²)."""
+def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
+    """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1);
+    returns the squared normal-row residual (m²/s²)."""
     i = ci[k]
     j = cj[k]
     c = cd[k]
@@ -44,7 +45,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     # Normal row.
     ln = lam[k, 0]
     un = n0 * (vi0 - vj0) + n1 * (vi1 - vj1) + n2 * (vi2 - vj2)
-    ln_new = max(0.0, ln + (c[B] - un - c[SIG] * ln) * c[KN])
+    ln_new = max(0.0, ln + omega * (c[B] - un - c[SIG] * ln) * c[KN])
     dn = ln_new - ln
     lam[k, 0] = ln_new
     vi0 += dn * imi * n0
@@ -53,7 +54,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     vj0 -= dn * imj * n0
     vj1 -= dn * imj * n1
     vj2 -= dn * imj * n2
-    res = dn / c[KN]
+    res = dn / (omega * c[KN])
     if (
         ln_new == 0.0
         and lam[k, 1] == 0.0
@@ -79,7 +80,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     u0 = vi0 - vj0 - (s1 * n2 - s2 * n1)
     u1 = vi1 - vj1 - (s2 * n0 - s0 * n2)
     u2 = vi2 - vj2 - (s0 * n1 - s1 * n0)
-    kt = c[KT]
+    kt = omega * c[KT]
     t0 = lam[k, 1] - kt * u0
     t1 = lam[k, 2] - kt * u1
     t2 = lam[k, 3] - kt * u2
@@ -121,7 +122,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI):
     a1 = wi1 - wj1
     a2 = wi2 - wj2
     an = a0 * n0 + a1 * n1 + a2 * n2
-    kr = c[KR]
+    kr = omega * c[KR]
     r0 = lam[k, 4] - kr * (a0 - an * n0)
     r1 = lam[k, 5] - kr * (a1 - an * n1)
     r2 = lam[k, 6] - kr * (a2 - an * n2)
@@ -176,10 +177,13 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
 
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
-def solve(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, method, tolerance):
+def solve(
+    ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, method, tolerance, omega
+):
     """Sweep the contacts until the residual is below ``tolerance`` or ``iterations`` sweeps ran.
 
-    ``method`` is an index into :data:`dozerlab.ndem.params.METHODS`: 0 plain PGS; 1 NNCG
+    Each update is scaled by ``omega`` (projected SOR when > 1). ``method`` is an index into
+    :data:`dozerlab.ndem.params.METHODS`: 0 PGS; 1 NNCG
     (Silcowitz, Niebe & Erleben 2010), which after each sweep adds β·p to the multipliers, p
     the previous search direction and β = |Δλ_k|² / |Δλ_{k-1}|² (Fletcher–Reeves on the sweep's
     step Δλ), restarting (β = 0) when β > 1; the last sweep adds nothing, so the multipliers
@@ -226,7 +230,7 @@ def solve(ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, m
                         if nncg:
                             for a in range(7):
                                 prev[k, a] = lam[k, a]
-                        r += _solve(k, ci, cj, cd, lam, v, w, invm, invI)
+                        r += _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega)
                         if nncg:
                             for a in range(7):
                                 d = lam[k, a] - prev[k, a]

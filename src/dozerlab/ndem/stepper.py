@@ -145,6 +145,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             p.warm_start,
             METHODS.index(p.method),
             p.tolerance,
+            p.relaxation,
         )
     state.warm.store(state.id, ci, cj, lam)
     bodies.force, bodies.torque = contacts.body_loads(

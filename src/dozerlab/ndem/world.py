@@ -68,6 +68,7 @@ class World:
     iterations = _parameter("iterations")
     gravity = _parameter("gravity")
     method = _parameter("method")
+    relaxation = _parameter("relaxation")
     tolerance = _parameter("tolerance")
     damping_steps = _parameter("damping_steps")
     youngs_modulus = _parameter("youngs_modulus")
