@@ -257,6 +257,7 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         int(b["iterations"]),
         solver["gravity"],
         method=solver["method"],
+        relaxation=solver["relaxation"],
         tolerance=solver["tolerance"],
         damping_steps=solver["damping_steps"],
         youngs_modulus=mat["youngs_modulus"],
