@@ -1,0 +1,63 @@
+"""A whole simulation run per solver setting: stepping time, largest overlap, blade force.
+
+    python benchmarks/ndem_solver_run.py --bed results/beds/hill.npz \\
+        --trajectory results/trajectories/hill/speed~1.5_depth~0.08.csv --config config/quick.yaml \\
+        --solvers pgs:1.0:100 pgs:1.5:60 pgs:1.0:200 pgs:1.5:100
+
+Each solver is METHOD:RELAXATION:ITERATIONS (no tolerance). The run drives the blade along the
+trajectory from the bed as the ``simulate`` job does (without sampling) and prints, side by
+side in one process, the seconds spent stepping, the largest overlap over the smaller radius
+(how soft the bed got: the divergence guard is ``solver.max_overlap``), the mean sweeps and
+the blade's mean push force. Not a test: the seconds depend on the machine and its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bed", required=True)
+    ap.add_argument("--trajectory", required=True)
+    ap.add_argument("--config", required=True)
+    ap.add_argument("--solvers", nargs="+", required=True, help="METHOD:RELAXATION:ITERATIONS")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args(argv)
+
+    from dozerlab.runtime import set_threads
+
+    set_threads(args.threads)
+    from dozerlab.config import load_config
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.blade import add_blade
+    from dozerlab.scenarios.build import make_world
+    from dozerlab.scenarios.trajectory import Trajectory
+
+    config = load_config(args.config)
+    traj, bed = Trajectory.load_csv(args.trajectory), Bed.load(args.bed)
+    for spec in args.solvers:
+        method, omega, iterations = spec.split(":")
+        solver = {"method": method, "relaxation": float(omega), "iterations": int(iterations)}
+        world, _ = make_world(bed, {**config, "solver": {**config["solver"], **solver}})
+        blade = add_blade(world, traj.position[0], config)
+        seconds, overlap, sweeps, fx = 0.0, 0.0, 0, []
+        for i in range(traj.steps):
+            world.set_velocity(blade, traj.velocity[i])
+            t0 = time.perf_counter()
+            stats = world.step()
+            seconds += time.perf_counter() - t0
+            overlap = max(overlap, stats.max_overlap_fraction)
+            sweeps += stats.iterations
+            fx.append(world.force_on(blade)[0])
+        print(
+            f"{spec:16s} stepping {seconds:6.2f} s, largest overlap {overlap:.3f} r, "
+            f"{sweeps / traj.steps:.0f} sweeps/step, mean push {-np.mean(fx):8.1f} N"
+        )
+
+
+if __name__ == "__main__":
+    main()
