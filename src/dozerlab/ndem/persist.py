@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +21,7 @@ SCALARS = tuple(n for n in NAMES if n != "gravity")
 
 def save_world(path: str | Path, params: Parameters, state: WorldState, bodies: Bodies) -> None:
     """Write a World's parameters, state and bodies to ``path`` (.npz) atomically."""
-    arrays: dict[str, np.ndarray] = {"format_version": np.array(FORMAT_VERSION)}
+    arrays: dict[str, Any] = {"format_version": np.array(FORMAT_VERSION)}
     arrays |= {f"param_{p}": np.array(getattr(params, p)) for p in SCALARS}
     arrays |= {"param_gravity": params.gravity}
     arrays |= {"param_time": np.array(state.time), "param_step_count": np.array(state.step_count)}

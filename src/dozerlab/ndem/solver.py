@@ -240,9 +240,9 @@ def solve(
         done += 1
         res = 0.0
         step_norm = 0.0
-        for s in range(n_slabs):
-            res += res_part[s]
-            step_norm += step_part[s]
+        for t in range(n_slabs):
+            res += res_part[t]
+            step_norm += step_part[t]
         if tolerance > 0.0 and res <= threshold:
             break
         if not nncg or done == iterations:

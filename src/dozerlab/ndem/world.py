@@ -51,7 +51,7 @@ class World:
         gravity: object | None = None,
         **params: Any,
     ) -> None:
-        positional = {"dt": dt, "iterations": iterations, "gravity": gravity}
+        positional: dict[str, Any] = {"dt": dt, "iterations": iterations, "gravity": gravity}
         self.params = Parameters(**{k: v for k, v in positional.items() if v is not None}, **params)
         self.state = WorldState()
         self.bodies = Bodies()
@@ -112,7 +112,7 @@ class World:
         """
         x = np.array(positions, dtype=np.float64, ndmin=2)
         if x.ndim != 2 or x.shape[1] != 3:
-            raise ValueError(f"positions must have shape (n, 3), got {np.shape(positions)}")
+            raise ValueError(f"positions must have shape (n, 3), got {np.asarray(positions).shape}")
         if not np.all(np.isfinite(x)):
             raise ValueError("positions must be finite (found NaN or inf)")
         n = x.shape[0]
@@ -324,8 +324,9 @@ class World:
         if int(n) != n or n < 1:
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         for _ in range(int(n)):
-            self.last_stats = advance(self.state, self.bodies, self.params)
-        return self.last_stats
+            stats = advance(self.state, self.bodies, self.params)
+        self.last_stats = stats
+        return stats
 
     # ---- persistence ---------------------------------------------------------------------
 
