@@ -122,3 +122,22 @@ def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_pat
             os.killpg(server.pid, signal.SIGTERM)
             server.wait(timeout=30)
     assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_a_child_lands_in_its_parents_experiment(tmp_path, monkeypatch):
+    """The workflow's parent run is in the config's experiment; jobs that are not told it (bed,
+    simulate) must not scatter their runs into the default one."""
+    from dozerlab.tracking_cli import start_parent_run
+
+    monkeypatch.chdir(tmp_path)
+    for var in ("MLFLOW_TRACKING_URI", "DOZERLAB_MLFLOW", tracking.PARENT_ENV):
+        monkeypatch.delenv(var, raising=False)
+    parent_id = start_parent_run("elsewhere", "workflow")
+    monkeypatch.setenv(tracking.PARENT_ENV, parent_id)
+    with tracking.tracked_run("child", rule="test") as run:  # experiment left at its default
+        child_id = run.info.run_id
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    elsewhere = client.get_experiment_by_name("elsewhere").experiment_id
+    assert client.get_run(child_id).info.experiment_id == elsewhere
+    assert client.get_run(child_id).data.tags["mlflow.parentRunId"] == parent_id
+    assert client.get_experiment_by_name("dozerlab") is None

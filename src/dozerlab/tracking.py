@@ -101,10 +101,12 @@ def wait_for_server(uri: str, limit_s: float) -> None:
         interval = min(2 * interval, 8.0)
 
 
-def configure(experiment: str = "dozerlab") -> str:
+def configure(experiment: str = "dozerlab", parent_run_id: str | None = None) -> str:
     """Point MLflow at the tracking store and experiment; return the experiment id.
 
-    A tracking server is first waited for (:func:`wait_for_server`, ``DOZERLAB_MLFLOW_WAIT``).
+    With ``parent_run_id`` the experiment is the parent run's, whatever ``experiment`` says: a
+    job whose command is not given the config's ``mlflow.experiment`` (bed, simulate) still lands
+    beside its parent. A tracking server is first waited for (:func:`wait_for_server`).
     """
     import mlflow
 
@@ -112,6 +114,9 @@ def configure(experiment: str = "dozerlab") -> str:
     wait_for_server(uri, wait_limit())
     mlflow.set_tracking_uri(uri)
     with _store_lock(uri):
+        if parent_run_id:
+            parent = mlflow.MlflowClient().get_run(parent_run_id)
+            return mlflow.set_experiment(experiment_id=parent.info.experiment_id).experiment_id
         return mlflow.set_experiment(experiment).experiment_id
 
 
@@ -147,8 +152,8 @@ def tracked_run(
         return
     import mlflow
 
-    configure(experiment)
     parent = os.environ.get(PARENT_ENV) or None
+    configure(experiment, parent)
     all_tags = {"rule": rule, **{k: str(v) for k, v in (tags or {}).items()}}
     if os.environ.get("SLURM_JOB_ID"):
         all_tags["slurm_job_id"] = os.environ["SLURM_JOB_ID"]
