@@ -125,12 +125,13 @@ def test_job_resources_name_account_and_partition_only_when_set():
     assert cluster.job_threads(config, "report") == 1
 
 
-def test_the_rules_take_memory_time_and_partition_from_a_config_overlay(tmp_path):
+@pytest.mark.parametrize("base", ["config.yaml", "quick.yaml"])
+def test_the_rules_take_memory_time_and_partition_from_a_config_overlay(tmp_path, base):
     """A dry run shows what each job would ask: an overlay raises one field, the rest stay."""
     overlay = tmp_path / "cluster.yaml"
     overlay.write_text("cluster: {partition: big, mem_mb: {train: 12345}, runtime: {bed: 77}}\n")
     cmd = [sys.executable, "-m", "snakemake", "-n", "--cores", "2", "-s", str(REPO / "Snakefile"),
-           "--directory", str(tmp_path), "--configfile", str(REPO / "config" / "quick.yaml"),
+           "--directory", str(tmp_path), "--configfile", str(REPO / "config" / base),
            str(overlay)]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
