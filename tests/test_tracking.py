@@ -118,9 +118,13 @@ def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_pat
         assert client.get_run(run_id).info.status == "FINISHED"
     finally:
         starter.join()
-        for server in servers:
+        for server in servers:  # the server, its uvicorn worker and job consumers: one group
             os.killpg(server.pid, signal.SIGTERM)
-            server.wait(timeout=30)
+            try:
+                server.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(server.pid, signal.SIGKILL)
+                server.wait()
     assert not (tmp_path / "mlflow.db").exists()
 
 
