@@ -27,8 +27,10 @@ rule all:
 
 
 # One parent MLflow run per invocation that runs jobs (Snakemake calls onstart only then, so a
-# rerun with nothing to do logs nothing); every job's run is its child.
+# rerun with nothing to do logs nothing); every job's run is its child. On SLURM, jobs no node
+# can hold are refused first, before anything is submitted or logged.
 onstart:
+    check_cluster_fit()
     start_parent_run()
 
 

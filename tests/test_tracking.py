@@ -1,12 +1,18 @@
 """The MLflow store under jobs that start together (what `snakemake --cores N` or a user's
-shell loop does on a fresh project)."""
+shell loop does on a fresh project), and jobs whose tracking server is not up yet."""
 
 import os
+import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 
+import pytest
 from mlflow.tracking import MlflowClient
+
+from dozerlab import tracking
 
 JOB = """
 import sys, time
@@ -38,3 +44,104 @@ def test_jobs_started_together_on_a_fresh_store_all_record(tmp_path):
     client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
     runs = client.search_runs([client.get_experiment_by_name("dozerlab").experiment_id])
     assert sorted(r.info.run_name for r in runs) == [f"job{i}" for i in range(4)]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_wait_limit_refuses_a_bad_value_by_name(monkeypatch):
+    monkeypatch.setenv(tracking.WAIT_ENV, "soon")
+    with pytest.raises(
+        ValueError,
+        match=r"DOZERLAB_MLFLOW_WAIT must be a number of seconds in \[0, 86400\], got 'soon'",
+    ):
+        tracking.wait_limit()
+    monkeypatch.setenv(tracking.WAIT_ENV, "-1")
+    with pytest.raises(ValueError, match="DOZERLAB_MLFLOW_WAIT"):
+        tracking.wait_limit()
+    monkeypatch.setenv(tracking.WAIT_ENV, "7.5")
+    assert tracking.wait_limit() == 7.5
+    monkeypatch.delenv(tracking.WAIT_ENV)
+    assert tracking.wait_limit() == tracking.DEFAULT_WAIT_S
+
+
+def test_a_job_gives_up_on_an_absent_server_after_the_bounded_wait(tmp_path, monkeypatch):
+    uri = f"http://127.0.0.1:{free_port()}"  # nothing listens there
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.setenv(tracking.WAIT_ENV, "2")
+    monkeypatch.chdir(tmp_path)
+    start = time.monotonic()
+    with (
+        pytest.raises(tracking.TrackingServerUnreachable, match=rf"{uri} .*did not answer for 2 s"),
+        tracking.tracked_run("job", rule="test"),
+    ):
+        pass
+    assert time.monotonic() - start >= 2.0  # it did wait, and then stopped
+    assert not (tmp_path / "mlflow.db").exists()  # no fallback to a local store
+
+
+def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_path, monkeypatch):
+    """A real tracking server on 127.0.0.1, started seconds after the job: the job waits for it,
+    and its run lands FINISHED in the server's store."""
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}"
+    backend = f"sqlite:///{tmp_path / 'server.db'}"
+    server_cmd = [sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port",
+                  str(port), "--workers", "1", "--backend-store-uri", backend,
+                  "--artifacts-destination", str(tmp_path / "artifacts")]  # fmt: skip
+    servers: list[subprocess.Popen] = []
+
+    def start_late() -> None:
+        time.sleep(3.0)
+        servers.append(
+            subprocess.Popen(
+                server_cmd,
+                stdout=subprocess.DEVNULL,
+                stderr=(tmp_path / "server.log").open("w"),
+                start_new_session=True,  # the server's workers are stopped with it
+            )
+        )
+
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.setenv(tracking.WAIT_ENV, "180")
+    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
+    monkeypatch.chdir(tmp_path)
+    starter = threading.Thread(target=start_late)
+    starter.start()
+    try:
+        with tracking.tracked_run("late", rule="test") as run:
+            run_id = run.info.run_id
+        client = MlflowClient(tracking_uri=uri)
+        assert client.get_run(run_id).info.status == "FINISHED"
+    finally:
+        starter.join()
+        for server in servers:  # the server, its uvicorn worker and job consumers: one group
+            os.killpg(server.pid, signal.SIGTERM)
+            try:
+                server.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(server.pid, signal.SIGKILL)
+                server.wait()
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_a_child_lands_in_its_parents_experiment(tmp_path, monkeypatch):
+    """The workflow's parent run is in the config's experiment; jobs that are not told it (bed,
+    simulate) must not scatter their runs into the default one."""
+    from dozerlab.tracking_cli import start_parent_run
+
+    monkeypatch.chdir(tmp_path)
+    for var in ("MLFLOW_TRACKING_URI", "DOZERLAB_MLFLOW", tracking.PARENT_ENV):
+        monkeypatch.delenv(var, raising=False)
+    parent_id = start_parent_run("elsewhere", "workflow")
+    monkeypatch.setenv(tracking.PARENT_ENV, parent_id)
+    with tracking.tracked_run("child", rule="test") as run:  # experiment left at its default
+        child_id = run.info.run_id
+    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
+    elsewhere = client.get_experiment_by_name("elsewhere").experiment_id
+    assert client.get_run(child_id).info.experiment_id == elsewhere
+    assert client.get_run(child_id).data.tags["mlflow.parentRunId"] == parent_id
+    assert client.get_experiment_by_name("dozerlab") is None

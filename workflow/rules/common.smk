@@ -8,7 +8,7 @@ import shlex
 import subprocess
 import sys
 
-from dozerlab import tracking
+from dozerlab import cluster, tracking
 from dozerlab.config import load_config, schema
 from dozerlab import sweep as P
 
@@ -73,6 +73,28 @@ def all_targets():
     targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
     targets.append(f"{RESULTS}/report/index.html")
     return targets
+
+
+def check_cluster_fit():
+    """On SLURM, refuse before any submission the jobs that no node of their partition can hold.
+
+    sbatch accepts them on clusters without EnforcePartLimits and they pend forever. The jobs'
+    own threads and resources are checked, so --set-threads / --set-resources count too.
+    """
+    plugin = workflow.executor_plugin
+    if plugin is None or plugin.name != "slurm":
+        return
+    requests = [
+        cluster.Request(
+            f"{job.rule.name} ({', '.join(f'{k}={v}' for k, v in job.wildcards.items()) or 'no wildcards'})",
+            job.threads,
+            int(job.resources.get("mem_mb", 0)),
+            str(job.resources.get("slurm_partition", "") or ""),
+        )
+        for job in workflow.dag.needrun_jobs()
+        if not job.is_local
+    ]
+    cluster.check_fit(requests, cluster.slurm_nodes())
 
 
 def start_parent_run():

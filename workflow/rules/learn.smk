@@ -9,6 +9,8 @@ rule train:
     log:
         "logs/train/{model}.log",
     threads: config["threads"]["train"]
+    resources:
+        **cluster.job_resources(config, "train"),
     params:
         cfg=lambda wc: config_json("seed", "learn", "mlflow"),
     shell:
@@ -27,6 +29,8 @@ rule validate:
     log:
         "logs/validate/{model}.log",
     threads: 1
+    resources:
+        **cluster.job_resources(config, "validate"),
     params:
         cfg=lambda wc: config_json("mlflow"),
         held_out=lambda wc, input: " ".join(

@@ -11,6 +11,8 @@ rule report:
     log:
         "logs/report.log",
     threads: 1
+    resources:
+        **cluster.job_resources(config, "report"),
     params:
         cfg=lambda wc: config_json("sweep", "learn"),
     shell:

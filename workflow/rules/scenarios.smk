@@ -8,6 +8,8 @@ rule bed:
     log:
         "logs/bed/{scenario}.log",
     threads: config["threads"]["bed"]
+    resources:
+        **cluster.job_resources(config, "bed"),
     params:
         cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios", scenario=wc.scenario),
     shell:
@@ -31,6 +33,8 @@ rule trajectory:
     log:
         "logs/trajectory/{scenario}/speed~{speed}_depth~{depth}.log",
     threads: 1
+    resources:
+        **cluster.job_resources(config, "trajectory"),
     params:
         cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory", scenario=wc.scenario),
     shell:

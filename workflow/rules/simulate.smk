@@ -15,6 +15,8 @@ rule simulate:
     log:
         "logs/simulate/{scenario}/speed~{speed}_depth~{depth}.log",
     threads: config["threads"]["simulate"]
+    resources:
+        **cluster.job_resources(config, "simulate"),
     params:
         cfg=lambda wc: config_json(
             "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
@@ -36,5 +38,7 @@ rule plot_fields:
     log:
         "logs/plot_fields/{scenario}/speed~{speed}_depth~{depth}.log",
     threads: 1
+    resources:
+        **cluster.job_resources(config, "plot_fields"),
     shell:
         "python -m dozerlab plot-fields {input.store:q} --out {output:q} > {log:q} 2>&1"
