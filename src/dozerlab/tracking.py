@@ -4,18 +4,28 @@ Runs go to MLflow's local SQLite store (``sqlite:///mlflow.db`` in the working d
 artifacts under ``mlruns/``) unless ``MLFLOW_TRACKING_URI`` names another one (a tracking
 server, say). When ``DOZERLAB_PARENT_RUN_ID`` is set — the workflow sets it to the run of its
 invocation — each job's run is a child of that run. ``DOZERLAB_MLFLOW=0`` turns tracking off.
+
+The parent run of one workflow invocation: the Snakefile's ``onstart`` handler (which Snakemake
+calls only when jobs will run) starts it (:func:`start_parent_run`, ``dozerlab mlflow-start``)
+before any job does, so the experiment and a fresh SQLite store are created once, not raced by
+parallel jobs; it exports the run id as ``DOZERLAB_PARENT_RUN_ID``. ``onsuccess`` / ``onerror``
+end it FINISHED / FAILED (:func:`end_parent_run`, ``dozerlab mlflow-end``) and attach the
+artifacts (the report, Snakemake's log) that this invocation wrote.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
 DEFAULT_URI = "sqlite:///mlflow.db"
+#: How a parent run may end (``dozerlab mlflow-end --status``).
+STATUSES = ("FINISHED", "FAILED", "KILLED")
 
 
 def enabled() -> bool:
@@ -93,3 +103,56 @@ def tracked_run(
         if params:
             mlflow.log_params(flatten(params))
         yield run
+
+
+def start_parent_run(
+    experiment: str,
+    name: str,
+    *,
+    config: Mapping[str, Any] | None = None,
+    tags: Mapping[str, str] | None = None,
+) -> str:
+    """Create the experiment if needed and a RUNNING parent run in it; return the run id.
+
+    ``config`` (the validated config) is logged flattened as the run's params. When
+    ``DOZERLAB_PARENT_RUN_ID`` is already set (the workflow itself runs inside a tracked run),
+    the new run is nested under that one.
+    """
+    from mlflow import MlflowClient
+    from mlflow.entities import Param
+
+    experiment_id = configure(experiment)
+    client = MlflowClient()
+    all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
+    outer = os.environ.get(PARENT_ENV)
+    if outer:
+        all_tags["mlflow.parentRunId"] = outer
+    run = client.create_run(experiment_id, tags=all_tags, run_name=name)
+    if config:
+        params = [Param(k, v) for k, v in flatten(config).items()]
+        for i in range(0, len(params), 100):  # MLflow takes at most 100 params per batch
+            client.log_batch(run.info.run_id, params=params[i : i + 100])
+    return run.info.run_id
+
+
+def end_parent_run(
+    run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()
+) -> list[Path]:
+    """End the parent run with ``status``, logging each of ``artifacts`` written since it began.
+
+    Paths that do not exist, or that are older than the run (a report this invocation did not
+    rebuild), are skipped. Returns the paths logged.
+    """
+    if status not in STATUSES:
+        raise ValueError(f"status must be one of {STATUSES}, got '{status}'")
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI))
+    started = client.get_run(run_id).info.start_time / 1000.0
+    logged = []
+    for path in map(Path, artifacts):
+        if path.is_file() and path.stat().st_mtime >= started:
+            client.log_artifact(run_id, str(path))
+            logged.append(path)
+    client.set_terminated(run_id, status=status)
+    return logged

@@ -16,7 +16,8 @@ from dozerlab.scenarios.blade import (
     tip_to_centre,
 )
 from dozerlab.scenarios.build import build_bed, make_world
-from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory, plot_trajectory
+from dozerlab.scenarios.plots import plot_bed, plot_trajectory
+from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory
 
 __all__ = [
     "SCENARIOS",
@@ -28,6 +29,7 @@ __all__ = [
     "centre_to_tip",
     "make_world",
     "plan_trajectory",
+    "plot_bed",
     "plot_trajectory",
     "start_tip",
     "tip_to_centre",
