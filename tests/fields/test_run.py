@@ -8,6 +8,7 @@ import pytest
 from dozerlab.cli import main
 from dozerlab.config import load_config
 from dozerlab.fields.store import open_store
+from tests.helpers import lattice_bed
 
 CONFIG = {
     "solver": {"dt": 0.01, "iterations": 30},
@@ -29,26 +30,14 @@ CONFIG = {
 
 def _lattice_bed(config: dict):
     """A settled-looking bed: a cubic lattice of touching spheres 0.18 m high (≈ 200 particles)."""
-    from dozerlab.scenarios.bed import Bed
-
-    r = 0.03
-    xs = np.arange(r, 0.8 - r + 1e-9, 2 * r)
-    ys = np.arange(-0.18 + r, 0.18 - r + 1e-9, 2 * r)
-    zs = np.arange(r, 0.18, 2 * r)
-    pos = np.array(np.meshgrid(xs, ys, zs, indexing="ij")).reshape(3, -1).T
-    radii = np.full(len(pos), r)
-    zeros = np.zeros_like(pos)
-    return Bed(
-        scenario="hill",
+    return lattice_bed(
+        "hill",
+        lambda x: 0.18,
         length=0.8,
         width=0.36,
-        positions=pos,
-        radii=radii,
-        masses=config["material"]["density"] * 4 / 3 * np.pi * radii**3,
-        velocities=zeros,
-        angular_velocities=zeros,
-        material=dict(config["material"]),
+        radius=0.03,
         seed=1,
+        material=dict(config["material"]),
     )
 
 
