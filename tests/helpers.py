@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +55,38 @@ def lattice_bed(
         np.zeros((n, 3)),
         material,
         seed,
+    )
+
+
+#: A run of a few seconds: a 0.8 m bed of 234 grains (:func:`tiny_bed`), 6×5×4 bins.
+TINY_RUN = {
+    "solver": {"dt": 0.01, "iterations": 30},
+    "material": {"youngs_modulus": 0.0},
+    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
+    "scenarios": {"hill": {"goal_height": 0.08}},
+    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
+    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
+    "sampling": {
+        "length": 0.3,
+        "below_edge": 0.05,
+        "bins": [6, 5, 4],
+        "every": 2,
+        "chunk_steps": 8,
+        "vtk_every": 10,
+    },
+}
+
+
+def tiny_bed(config: dict[str, Any]) -> Bed:
+    """The bed of :data:`TINY_RUN`: a lattice of touching spheres 0.18 m high (234 of them)."""
+    return lattice_bed(
+        "hill",
+        lambda x: 0.18,
+        length=0.8,
+        width=0.36,
+        radius=0.03,
+        seed=1,
+        material=dict(config["material"]),
     )
 
 

@@ -8,37 +8,8 @@ import pytest
 from dozerlab.cli import main
 from dozerlab.config import load_config
 from dozerlab.fields.store import open_store
-from tests.helpers import lattice_bed
-
-CONFIG = {
-    "solver": {"dt": 0.01, "iterations": 30},
-    "material": {"youngs_modulus": 0.0},
-    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
-    "scenarios": {"hill": {"goal_height": 0.08}},
-    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
-    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
-    "sampling": {
-        "length": 0.3,
-        "below_edge": 0.05,
-        "bins": [6, 5, 4],
-        "every": 2,
-        "chunk_steps": 8,
-        "vtk_every": 10,
-    },
-}
-
-
-def _lattice_bed(config: dict):
-    """A settled-looking bed: a cubic lattice of touching spheres 0.18 m high (≈ 200 particles)."""
-    return lattice_bed(
-        "hill",
-        lambda x: 0.18,
-        length=0.8,
-        width=0.36,
-        radius=0.03,
-        seed=1,
-        material=dict(config["material"]),
-    )
+from tests.helpers import TINY_RUN as CONFIG
+from tests.helpers import tiny_bed
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +18,7 @@ def inputs(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("run")
     config = load_config(CONFIG)
-    bed = _lattice_bed(config)
+    bed = tiny_bed(config)
     bed.save(tmp / "bed.npz")
     traj = plan_trajectory(bed, 0.5, 0.06, config)
     traj.save_csv(tmp / "speed~0.5_depth~0.06.csv")

@@ -6,7 +6,6 @@ import pytest
 
 from dozerlab.runtime import DozerlabError
 from dozerlab.scenarios.bed import Bed
-from dozerlab.scenarios.blade import BladeGeometry, centre_to_tip, tip_to_centre
 
 
 def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
@@ -91,12 +90,3 @@ def test_kinetic_energy_counts_translation_and_rotation():
     assert bed.kinetic_energy_per_particle() == pytest.approx(
         0.5 * 2.0 + 0.5 * 0.4 * 2.0 * 0.01 * 100.0
     )
-
-
-def test_blade_tip_centre_conversion(config):
-    g = BladeGeometry.from_config(config)
-    tip = np.array([0.3, 0.0, 0.2])
-    centre = tip_to_centre(tip, g)
-    np.testing.assert_allclose(centre, tip + [-g.thickness / 2, 0.0, g.height / 2])
-    np.testing.assert_allclose(centre_to_tip(centre, g), tip)
-    np.testing.assert_allclose(g.half_extents, [g.thickness / 2, g.width / 2, g.height / 2])
