@@ -12,9 +12,24 @@ from typing import Any
 
 import numpy as np
 
+from dozerlab.config import load_config
 from dozerlab.fields.store import write_store
 from dozerlab.learn.data import StoreData, from_arrays
 from dozerlab.scenarios.bed import Bed
+from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory
+
+#: A small sweep of one scenario: two training speeds, one interpolation and one
+#: extrapolation point, one model.
+SMALL_SWEEP = {
+    "sweep": {
+        "scenarios": ["hill"],
+        "speeds": [0.5, 1.0],
+        "depths": [0.1],
+        "interpolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.1}],
+        "extrapolation": [{"scenario": "hill", "speed": 2.0, "depth": 0.1}],
+    },
+    "learn": {"models": ["linear"]},
+}
 
 #: The grid of the synthetic field stores, (Nx, Ny, Nz).
 GRID = (8, 6, 4)
@@ -88,6 +103,19 @@ def tiny_bed(config: dict[str, Any]) -> Bed:
         seed=1,
         material=dict(config["material"]),
     )
+
+
+def write_tiny_run(
+    directory: Path, trajectory_name: str = "speed~0.5_depth~0.06.csv"
+) -> tuple[dict[str, Any], Bed, Trajectory]:
+    """Save the tiny run's bed (``bed.npz``) and a 0.5 m/s, 0.06 m deep trajectory
+    (``trajectory_name``) in ``directory``; return the validated config, the bed and the path."""
+    config = load_config(TINY_RUN)
+    bed = tiny_bed(config)
+    bed.save(directory / "bed.npz")
+    traj = plan_trajectory(bed, 0.5, 0.06, config)
+    traj.save_csv(directory / trajectory_name)
+    return config, bed, traj
 
 
 def synthetic(

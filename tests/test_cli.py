@@ -5,9 +5,7 @@ import json
 
 import pytest
 import yaml
-from mlflow.tracking import MlflowClient
 
-from dozerlab import tracking
 from dozerlab.cli import build_parser, main
 from dozerlab.config import load_config
 
@@ -49,37 +47,28 @@ def test_config_error_names_the_field_and_exits_2(capsys):
     assert "Traceback" not in err
 
 
-@pytest.fixture
-def store(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    monkeypatch.delenv("DOZERLAB_MLFLOW", raising=False)
-    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
-    return MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
-
-
-def test_mlflow_start_and_end_a_parent_run(store, tmp_path, capsys):
+def test_mlflow_start_and_end_a_parent_run(mlflow_store, tmp_path, capsys):
     cfg = json.dumps({"mlflow": {"experiment": "sweep"}})
     assert main(["mlflow-start", "--config", cfg, "--name", "wf", "--tag", "who=ci"]) == 0
     run_id = capsys.readouterr().out.strip()
-    run = store.get_run(run_id)
+    run = mlflow_store.get_run(run_id)
     assert run.info.status == "RUNNING" and run.info.run_name == "wf"
     assert run.data.tags["who"] == "ci" and run.data.params["mlflow.experiment"] == "sweep"
-    assert store.get_experiment(run.info.experiment_id).name == "sweep"
+    assert mlflow_store.get_experiment(run.info.experiment_id).name == "sweep"
 
     (tmp_path / "snakemake.log").write_text("done")
     argv = ["mlflow-end", run_id, "--status", "FAILED", "--artifact", "snakemake.log"]
     assert main(argv) == 0
     assert "logged snakemake.log" in capsys.readouterr().err
-    assert store.get_run(run_id).info.status == "FAILED"
-    assert [a.path for a in store.list_artifacts(run_id)] == ["snakemake.log"]
+    assert mlflow_store.get_run(run_id).info.status == "FAILED"
+    assert [a.path for a in mlflow_store.list_artifacts(run_id)] == ["snakemake.log"]
 
 
-def test_mlflow_start_refuses_a_malformed_tag_before_creating_a_run(store, capsys):
+def test_mlflow_start_refuses_a_malformed_tag_before_creating_a_run(mlflow_store, capsys):
     assert main(["mlflow-start", "--tag", "novalue"]) == 2
     assert "--tag must be KEY=VALUE, got 'novalue'" in capsys.readouterr().err
-    experiments = [e.experiment_id for e in store.search_experiments()]
-    assert store.search_runs(experiments) == []
+    experiments = [e.experiment_id for e in mlflow_store.search_experiments()]
+    assert mlflow_store.search_runs(experiments) == []
 
 
 def test_mlflow_end_offers_only_the_known_statuses(capsys):

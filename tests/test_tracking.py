@@ -43,16 +43,6 @@ def test_jobs_started_together_on_a_fresh_store_all_record(tmp_path):
     assert sorted(r.info.run_name for r in runs) == [f"job{i}" for i in range(4)]
 
 
-@pytest.fixture
-def store(tmp_path, monkeypatch):
-    """A fresh SQLite MLflow store in tmp_path, with tracking on and no parent run."""
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
-    monkeypatch.delenv("DOZERLAB_MLFLOW", raising=False)
-    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
-    return MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
-
-
 def test_flatten_nests_sections_into_dotted_string_params():
     flat = tracking.flatten({"solver": {"dt": 0.01, "iterations": 100}, "seed": 2018, "x": [1, 2]})
     assert flat == {"solver.dt": "0.01", "solver.iterations": "100", "seed": "2018", "x": "[1, 2]"}
@@ -68,7 +58,7 @@ def test_tracking_off_yields_no_run_and_writes_no_store(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_parent_run_children_tags_params_and_failed_job(store, tmp_path):
+def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
     parent = tracking.start_parent_run(
         "dozerlab", "workflow", config={"solver": {"dt": 0.01}}, tags={"configfiles": "a.yaml"}
     )
@@ -87,15 +77,15 @@ def test_parent_run_children_tags_params_and_failed_job(store, tmp_path):
     logged = tracking.end_parent_run(parent, "FINISHED", [report, tmp_path / "absent.log"])
     assert logged == [report]
 
-    run = store.get_run(parent)
+    run = mlflow_store.get_run(parent)
     assert run.info.status == "FINISHED"
     assert run.data.params == {"solver.dt": "0.01"}
     assert run.data.tags["rule"] == "workflow" and run.data.tags["configfiles"] == "a.yaml"
-    assert [a.path for a in store.list_artifacts(parent)] == ["index.html"]
-    exp = store.get_experiment_by_name("dozerlab").experiment_id
+    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
+    exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {
         r.info.run_name: r
-        for r in store.search_runs([exp], f"tags.mlflow.parentRunId = '{parent}'")
+        for r in mlflow_store.search_runs([exp], f"tags.mlflow.parentRunId = '{parent}'")
     }
     assert children["simulate hill"].info.status == "FINISHED"
     assert children["simulate hill"].data.tags["speed"] == "1.0"
@@ -103,6 +93,6 @@ def test_parent_run_children_tags_params_and_failed_job(store, tmp_path):
     assert children["train"].info.status == "FAILED"
 
 
-def test_end_parent_run_refuses_an_unknown_status(store):
+def test_end_parent_run_refuses_an_unknown_status(mlflow_store):
     with pytest.raises(ValueError, match="status must be one of"):
         tracking.end_parent_run("0" * 32, "DONE")

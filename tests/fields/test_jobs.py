@@ -4,36 +4,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from mlflow.tracking import MlflowClient
 
-from dozerlab import tracking
-from dozerlab.config import load_config
 from dozerlab.fields.jobs import simulate
 from dozerlab.fields.run import drive
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import ATTRS, open_store
-from dozerlab.scenarios.trajectory import plan_trajectory
-from tests.helpers import TINY_RUN, tiny_bed
+from tests.helpers import write_tiny_run
 
 
 @pytest.fixture(scope="module")
 def run_inputs(tmp_path_factory):
-    """The tiny run's bed and trajectory files (the trajectory named like no sweep point)."""
+    """The tiny run's files, the trajectory named like no sweep point: labels come from flags."""
     tmp = tmp_path_factory.mktemp("job")
-    config = load_config(TINY_RUN)
-    bed = tiny_bed(config)
-    bed.save(tmp / "bed.npz")
-    traj = plan_trajectory(bed, 0.5, 0.06, config)
-    traj.save_csv(tmp / "path.csv")
-    return tmp, config, bed, traj
+    return tmp, *write_tiny_run(tmp, "path.csv")
 
 
-def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, monkeypatch):
+def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mlflow_store):
     tmp, config, bed, _ = run_inputs
-    monkeypatch.chdir(tmp)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp / 'mlflow.db'}")
-    monkeypatch.setenv("DOZERLAB_MLFLOW", "1")
-    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
     out = tmp / "f.zarr"
     metrics = simulate(
         tmp / "bed.npz",
@@ -50,7 +37,7 @@ def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mon
     assert metrics["particle_count"] == bed.count and metrics["force_mag_peak"] > 0
     assert metrics["force_x_mean"] == pytest.approx(float(ds["force"].values[:, 0].mean()))
 
-    client = MlflowClient()
+    client = mlflow_store
     exp = client.get_experiment_by_name("dozerlab").experiment_id
     (run,) = client.search_runs([exp])
     assert run.info.status == "FINISHED" and run.info.run_name == "simulate step v=0.5 d=0.06"

@@ -6,22 +6,15 @@ import numpy as np
 import pytest
 
 from dozerlab.cli import main
-from dozerlab.config import load_config
 from dozerlab.fields.store import open_store
 from tests.helpers import TINY_RUN as CONFIG
-from tests.helpers import tiny_bed
+from tests.helpers import write_tiny_run
 
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
-    from dozerlab.scenarios.trajectory import plan_trajectory
-
     tmp = tmp_path_factory.mktemp("run")
-    config = load_config(CONFIG)
-    bed = tiny_bed(config)
-    bed.save(tmp / "bed.npz")
-    traj = plan_trajectory(bed, 0.5, 0.06, config)
-    traj.save_csv(tmp / "speed~0.5_depth~0.06.csv")
+    _, bed, traj = write_tiny_run(tmp)
     return tmp, bed, traj
 
 

@@ -9,6 +9,7 @@ import torch
 
 from dozerlab.config import load_config
 from dozerlab.learn import pyfunc
+from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.train import train_model
 from dozerlab.runtime import DozerlabError
 from tests.helpers import in_memory
@@ -53,14 +54,7 @@ def test_mlflow_loads_the_directory_and_predicts_like_the_model(saved):
     model, path = saved
     arrays = _inputs(in_memory(1.0, 0.1, steps=30, seed=7))
     got = mlflow.pyfunc.load_model(str(path)).predict(arrays)
-    assert list(got.columns) == [
-        "force_x",
-        "force_y",
-        "force_z",
-        "torque_x",
-        "torque_y",
-        "torque_z",
-    ]
+    assert list(got.columns) == list(TARGET_NAMES)
     np.testing.assert_allclose(got.to_numpy(), pyfunc.predict_arrays(model, arrays), rtol=1e-6)
     # the first row has no history: it repeats its own step, as the contract says
     first = pyfunc.predict_arrays(model, {k: a[:1] for k, a in arrays.items()})

@@ -10,19 +10,9 @@ from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.fields.store import write_store
 from dozerlab.report.build import build_report, inline_images
+from tests.helpers import SMALL_SWEEP
 
-CFG = load_config(
-    {
-        "sweep": {
-            "scenarios": ["hill"],
-            "speeds": [0.5, 1.0],
-            "depths": [0.1],
-            "interpolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.1}],
-            "extrapolation": [{"scenario": "hill", "speed": 2.0, "depth": 0.1}],
-        },
-        "learn": {"models": ["linear"]},
-    }
-)
+CFG = load_config(SMALL_SWEEP)
 
 
 def _png(path, title):
