@@ -4,8 +4,9 @@ import json
 import numpy as np
 import pytest
 
+from dozerlab.config import schema
 from dozerlab.runtime import DozerlabError
-from dozerlab.scenarios.bed import Bed
+from dozerlab.scenarios.bed import SCENARIOS, Bed
 
 
 def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
@@ -90,3 +91,11 @@ def test_kinetic_energy_counts_translation_and_rotation():
     assert bed.kinetic_energy_per_particle() == pytest.approx(
         0.5 * 2.0 + 0.5 * 0.4 * 2.0 * 0.01 * 100.0
     )
+
+
+def test_scenario_names_are_the_schemas():
+    sweep = schema()["properties"]["sweep"]["properties"]
+    assert tuple(sweep["scenarios"]["items"]["enum"]) == SCENARIOS
+    for role in ("interpolation", "extrapolation"):
+        assert tuple(sweep[role]["items"]["properties"]["scenario"]["enum"]) == SCENARIOS
+    assert tuple(schema()["properties"]["scenarios"]["properties"]) == SCENARIOS
