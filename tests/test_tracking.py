@@ -96,3 +96,24 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
 def test_end_parent_run_refuses_an_unknown_status(mlflow_store):
     with pytest.raises(ValueError, match="status must be one of"):
         tracking.end_parent_run("0" * 32, "DONE")
+
+
+def test_a_child_run_goes_into_its_parents_experiment(mlflow_store, monkeypatch):
+    parent = tracking.start_parent_run("sweep", "workflow")
+    monkeypatch.setenv(tracking.PARENT_ENV, parent)
+    with tracking.tracked_run("bed hill", rule="bed") as child:  # default experiment "dozerlab"
+        pass
+    assert child.info.experiment_id == mlflow_store.get_run(parent).info.experiment_id
+    assert mlflow_store.get_experiment_by_name("dozerlab") is None
+
+
+def test_job_run_follows_the_configs_mlflow_section(mlflow_store):
+    off = {"mlflow": {"enabled": False, "experiment": "x"}}
+    with tracking.job_run(off, "job", rule="test") as run:
+        assert run is None
+    on = {"mlflow": {"enabled": True, "experiment": "mine"}}
+    with tracking.job_run(on, "job", rule="test", tags={"model": "mlp"}) as run:
+        pass
+    got = mlflow_store.get_run(run.info.run_id)
+    assert mlflow_store.get_experiment(got.info.experiment_id).name == "mine"
+    assert got.data.tags["rule"] == "test" and got.data.tags["model"] == "mlp"

@@ -18,7 +18,7 @@ from __future__ import annotations
 import fcntl
 import os
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -52,13 +52,20 @@ def _store_lock(uri: str) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def configure(experiment: str = "dozerlab") -> str:
-    """Point MLflow at the tracking store and experiment; return the experiment id."""
+def configure(experiment: str = "dozerlab", parent: str | None = None) -> str:
+    """Point MLflow at the tracking store and experiment; return the experiment id.
+
+    With a ``parent`` run id the experiment is the parent's, whatever ``experiment`` says: a
+    child run outside its parent's experiment would not show under it.
+    """
     import mlflow
 
     uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
     mlflow.set_tracking_uri(uri)
     with _store_lock(uri):
+        if parent is not None:
+            experiment_id = mlflow.get_run(parent).info.experiment_id
+            return mlflow.set_experiment(experiment_id=experiment_id).experiment_id
         return mlflow.set_experiment(experiment).experiment_id
 
 
@@ -85,17 +92,18 @@ def tracked_run(
 ) -> Iterator[Any]:
     """Open an MLflow run for one job; yields the active run, or None when tracking is off.
 
-    ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag make runs filterable in
-    ``mlflow ui``; ``params`` may be nested (config sections) and are flattened. A job that
-    raises leaves its run marked FAILED.
+    The run goes into ``experiment``, or, under a parent run (``DOZERLAB_PARENT_RUN_ID``), into
+    the parent's experiment. ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag
+    make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
+    flattened. A job that raises leaves its run marked FAILED.
     """
     if not enabled():
         yield None
         return
     import mlflow
 
-    configure(experiment)
     parent = os.environ.get(PARENT_ENV) or None
+    configure(experiment, parent)
     all_tags = {"rule": rule, **{k: str(v) for k, v in (tags or {}).items()}}
     with mlflow.start_run(
         run_name=name, parent_run_id=parent, nested=parent is not None, tags=all_tags
@@ -103,6 +111,23 @@ def tracked_run(
         if params:
             mlflow.log_params(flatten(params))
         yield run
+
+
+def job_run(
+    config: Mapping[str, Any] | None,
+    name: str,
+    *,
+    rule: str,
+    tags: Mapping[str, Any] | None = None,
+    params: Mapping[str, Any] | None = None,
+) -> AbstractContextManager[Any]:
+    """:func:`tracked_run` as a job's validated ``config`` asks: no run (None) when
+    ``mlflow.enabled`` is false, else one in ``mlflow.experiment``. Every job opens its run so."""
+    cfg = (config or {}).get("mlflow", {})
+    if not cfg.get("enabled", True):
+        return nullcontext(None)
+    experiment = cfg.get("experiment", "dozerlab")
+    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment)
 
 
 def start_parent_run(

@@ -87,7 +87,8 @@ def simulate(
     }
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
     name = f"simulate {scenario} v={speed} d={depth}"
-    with tracking.tracked_run(
+    with tracking.job_run(
+        config,
         name,
         rule="simulate",
         tags={"scenario": scenario, "speed": speed, "depth": depth},

@@ -10,7 +10,7 @@ from dozerlab.scenarios.bed import SCENARIOS, Bed
 from dozerlab.scenarios.build import build_bed
 from dozerlab.scenarios.plots import plot_bed, plot_trajectory
 from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory
-from dozerlab.tracking import tracked_run
+from dozerlab.tracking import job_run
 
 
 def bed_job(
@@ -28,8 +28,8 @@ def bed_job(
         raise ValueError(f"--scenario must be one of {list(SCENARIOS)}, got {scenario!r}")
     params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
     params["scenario"] = config["scenarios"][scenario]
-    with tracked_run(
-        f"bed {scenario}", rule="bed", tags={"scenario": scenario}, params=params
+    with job_run(
+        config, f"bed {scenario}", rule="bed", tags={"scenario": scenario}, params=params
     ) as run:
         bed = build_bed(scenario, config, progress=progress)
         bed.save(out)
