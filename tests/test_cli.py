@@ -1,7 +1,10 @@
-"""The command line: every command registered once, the commands of no layer (``config``,
-``mlflow-start``, ``mlflow-end``), and errors a user can fix printed without a traceback."""
+"""The command line: every command registered once without heavy imports, the commands of no
+layer (``config``, ``mlflow-start``, ``mlflow-end``), and errors a user can fix printed without a
+traceback."""
 
 import json
+import subprocess
+import sys
 
 import pytest
 import yaml
@@ -76,3 +79,15 @@ def test_mlflow_end_offers_only_the_known_statuses(capsys):
         main(["mlflow-end", "abc", "--status", "DONE"])
     assert exc.value.code == 2
     assert "FINISHED" in capsys.readouterr().err
+
+
+def test_listing_the_commands_imports_no_heavy_library():
+    code = (
+        "import sys\n"
+        "from dozerlab.cli import build_parser\n"
+        "build_parser()\n"
+        "heavy = ('numpy', 'numba', 'torch', 'mlflow', 'xarray', 'zarr', 'matplotlib', 'yaml')\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy)))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert out.stdout.strip() == "[]"
