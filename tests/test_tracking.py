@@ -1,5 +1,6 @@
-"""The MLflow store under jobs that start together (what `snakemake --cores N` or a user's
-shell loop does on a fresh project), and jobs whose tracking server is not up yet."""
+"""MLflow records: jobs' runs under a workflow's parent run, the store under jobs that start
+together (what `snakemake --cores N` or a user's shell loop does on a fresh project), and jobs
+whose tracking server is not up yet."""
 
 import os
 import signal
@@ -128,20 +129,77 @@ def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_pat
     assert not (tmp_path / "mlflow.db").exists()
 
 
-def test_a_child_lands_in_its_parents_experiment(tmp_path, monkeypatch):
-    """The workflow's parent run is in the config's experiment; jobs that are not told it (bed,
-    simulate) must not scatter their runs into the default one."""
-    from dozerlab.tracking_cli import start_parent_run
+def test_flatten_nests_sections_into_dotted_string_params():
+    flat = tracking.flatten({"solver": {"dt": 0.01, "iterations": 100}, "seed": 2018, "x": [1, 2]})
+    assert flat == {"solver.dt": "0.01", "solver.iterations": "100", "seed": "2018", "x": "[1, 2]"}
+    assert len(tracking.flatten({"long": "a" * 10_000})["long"]) == 6000
 
+
+def test_tracking_off_yields_no_run_and_writes_no_store(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    for var in ("MLFLOW_TRACKING_URI", "DOZERLAB_MLFLOW", tracking.PARENT_ENV):
-        monkeypatch.delenv(var, raising=False)
-    parent_id = start_parent_run("elsewhere", "workflow")
-    monkeypatch.setenv(tracking.PARENT_ENV, parent_id)
-    with tracking.tracked_run("child", rule="test") as run:  # experiment left at its default
-        child_id = run.info.run_id
-    client = MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
-    elsewhere = client.get_experiment_by_name("elsewhere").experiment_id
-    assert client.get_run(child_id).info.experiment_id == elsewhere
-    assert client.get_run(child_id).data.tags["mlflow.parentRunId"] == parent_id
-    assert client.get_experiment_by_name("dozerlab") is None
+    monkeypatch.setenv("DOZERLAB_MLFLOW", "0")
+    assert not tracking.enabled()
+    with tracking.tracked_run("job", rule="test") as run:
+        assert run is None
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
+    parent = tracking.start_parent_run(
+        "dozerlab", "workflow", config={"solver": {"dt": 0.01}}, tags={"configfiles": "a.yaml"}
+    )
+    os.environ[tracking.PARENT_ENV] = parent
+    try:
+        with tracking.tracked_run(
+            "simulate hill", rule="simulate", tags={"speed": 1.0}, params={"solver": {"dt": 0.01}}
+        ):
+            pass
+        with pytest.raises(RuntimeError), tracking.tracked_run("train", rule="train"):
+            raise RuntimeError("boom")
+    finally:
+        del os.environ[tracking.PARENT_ENV]
+    report = tmp_path / "index.html"
+    report.write_text("<html></html>")
+    logged = tracking.end_parent_run(parent, "FINISHED", [report, tmp_path / "absent.log"])
+    assert logged == [report]
+
+    run = mlflow_store.get_run(parent)
+    assert run.info.status == "FINISHED"
+    assert run.data.params == {"solver.dt": "0.01"}
+    assert run.data.tags["rule"] == "workflow" and run.data.tags["configfiles"] == "a.yaml"
+    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
+    exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
+    children = {
+        r.info.run_name: r
+        for r in mlflow_store.search_runs([exp], f"tags.mlflow.parentRunId = '{parent}'")
+    }
+    assert children["simulate hill"].info.status == "FINISHED"
+    assert children["simulate hill"].data.tags["speed"] == "1.0"
+    assert children["simulate hill"].data.params == {"solver.dt": "0.01"}
+    assert children["train"].info.status == "FAILED"
+
+
+def test_end_parent_run_refuses_an_unknown_status(mlflow_store):
+    with pytest.raises(ValueError, match="status must be one of"):
+        tracking.end_parent_run("0" * 32, "DONE")
+
+
+def test_a_child_run_goes_into_its_parents_experiment(mlflow_store, monkeypatch):
+    parent = tracking.start_parent_run("sweep", "workflow")
+    monkeypatch.setenv(tracking.PARENT_ENV, parent)
+    with tracking.tracked_run("bed hill", rule="bed") as child:  # default experiment "dozerlab"
+        pass
+    assert child.info.experiment_id == mlflow_store.get_run(parent).info.experiment_id
+    assert mlflow_store.get_experiment_by_name("dozerlab") is None
+
+
+def test_job_run_follows_the_configs_mlflow_section(mlflow_store):
+    off = {"mlflow": {"enabled": False, "experiment": "x"}}
+    with tracking.job_run(off, "job", rule="test") as run:
+        assert run is None
+    on = {"mlflow": {"enabled": True, "experiment": "mine"}}
+    with tracking.job_run(on, "job", rule="test", tags={"model": "mlp"}) as run:
+        pass
+    got = mlflow_store.get_run(run.info.run_id)
+    assert mlflow_store.get_experiment(got.info.experiment_id).name == "mine"
+    assert got.data.tags["rule"] == "test" and got.data.tags["model"] == "mlp"

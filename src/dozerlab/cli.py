@@ -1,7 +1,10 @@
 """Command-line interface: ``python -m dozerlab <command> …`` (or the ``dozerlab`` script).
 
-Each layer registers its commands from its own ``cli`` module, whose top level imports only
-argparse so that ``--help`` is instant; heavy imports happen inside the handlers. Every
+Each layer registers its commands from its own ``cli`` module (``dozerlab.<layer>.cli``); the
+commands of no layer (``config``, ``mlflow-start``, ``mlflow-end``) are registered here. Every
+``cli`` module's top level imports only argparse so that ``--help`` is instant; heavy imports
+happen inside the handlers, and a handler's work is a call into its layer (a job in
+``<layer>.jobs`` where it loads, computes, records in MLflow and saves). Every
 handler receives the parsed namespace and returns an exit code. Errors the user can fix
 (``ValueError`` and its kin: bad config, bad arguments, diverged runs) print one clear
 message and exit with status 2, without a traceback.
@@ -17,11 +20,10 @@ from collections.abc import Sequence
 
 from dozerlab import __version__
 from dozerlab.runtime import DozerlabError
+from dozerlab.tracking import STATUSES
 
-# Modules that define ``register(subparsers)``; each adds its own commands.
+# The layers' command modules; each defines ``register(subparsers)`` and adds its own commands.
 COMMAND_MODULES = (
-    "dozerlab.config_cli",
-    "dozerlab.tracking_cli",
     "dozerlab.report.cli",
     "dozerlab.scenarios.cli",
     "dozerlab.fields.cli",
@@ -29,11 +31,85 @@ COMMAND_MODULES = (
 )
 
 
+def register(sub: argparse._SubParsersAction) -> None:
+    """The commands of no layer: ``config``, ``mlflow-start``, ``mlflow-end``."""
+    p = sub.add_parser("config", help="validate a config file and print it complete")
+    p.add_argument(
+        "config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
+    p.set_defaults(func=_config)
+
+    p = sub.add_parser(
+        "mlflow-start", help="start the parent MLflow run of a workflow; print its id"
+    )
+    p.add_argument(
+        "--experiment",
+        default=None,
+        help="experiment name (default: the config's mlflow.experiment)",
+    )
+    p.add_argument("--name", default="workflow", help="run name")
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON, logged as the run's params"
+    )
+    p.add_argument(
+        "--tag", action="append", default=[], metavar="KEY=VALUE", help="a tag (repeatable)"
+    )
+    p.set_defaults(func=_mlflow_start)
+
+    p = sub.add_parser(
+        "mlflow-end", help="end a parent MLflow run, logging the artifacts it produced"
+    )
+    p.add_argument("run_id", help="the id mlflow-start printed")
+    p.add_argument("--status", default="FINISHED", choices=STATUSES)
+    p.add_argument(
+        "--artifact",
+        action="append",
+        default=[],
+        metavar="PATH",
+        help="a file to log if this invocation wrote it (repeatable)",
+    )
+    p.set_defaults(func=_mlflow_end)
+
+
+def _config(args: argparse.Namespace) -> int:
+    import yaml
+
+    from dozerlab.config import load_config
+
+    print(yaml.safe_dump(load_config(args.config), sort_keys=False), end="")
+    return 0
+
+
+def _mlflow_start(args: argparse.Namespace) -> int:
+    from dozerlab.config import load_config
+    from dozerlab.tracking import start_parent_run
+
+    cfg = load_config(args.config)
+    tags = {}
+    for item in args.tag:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--tag must be KEY=VALUE, got '{item}'")
+        tags[key] = value
+    experiment = args.experiment or cfg["mlflow"]["experiment"]
+    print(start_parent_run(experiment, args.name, config=cfg, tags=tags))
+    return 0
+
+
+def _mlflow_end(args: argparse.Namespace) -> int:
+    from dozerlab.tracking import end_parent_run
+
+    for path in end_parent_run(args.run_id, args.status, args.artifact):
+        print(f"logged {path}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dozerlab", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"dozerlab {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    register(sub)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser

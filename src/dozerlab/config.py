@@ -19,6 +19,7 @@ from typing import Any
 
 import jsonschema
 import yaml
+from jsonschema.protocols import Validator
 
 from dozerlab.runtime import DozerlabError
 
@@ -64,11 +65,11 @@ def schema() -> dict[str, Any]:
     return yaml.safe_load(text)
 
 
-def _with_defaults(cls: type) -> type:
+def _with_defaults(cls: type[Validator]) -> type[Validator]:
     """Extend a jsonschema validator class so that it fills in defaults while validating."""
     validate_properties = cls.VALIDATORS["properties"]
 
-    def properties(validator, props, instance, sch):  # type: ignore[no-untyped-def]
+    def properties(validator, props, instance, sch):
         if isinstance(instance, dict):
             for name, sub in props.items():
                 if "default" in sub:

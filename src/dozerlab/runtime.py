@@ -24,14 +24,15 @@ def set_threads(n: int) -> int:
     """
     if n < 1:
         raise ValueError(f"threads must be >= 1, got {n}")
-    env = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+    env: tuple[str, ...] = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
     if "numba" not in sys.modules:
         env += ("NUMBA_NUM_THREADS",)
     for var in env:
         os.environ[var] = str(n)
     import numba
 
-    n = min(n, numba.config.NUMBA_NUM_THREADS)
+    # numba.config sets its NUMBA_* attributes at run time, so the stubs cannot know them
+    n = min(n, numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
     numba.set_num_threads(n)
     # torch reads OMP_NUM_THREADS when first imported; only an already imported one is told,
     # so jobs that never use torch do not pay for importing it.

@@ -8,6 +8,13 @@ invocation — each job's run is a child of that run. ``DOZERLAB_MLFLOW=0`` turn
 A tracking server that does not answer yet (restarting, or still starting when the jobs do) is
 waited for, up to ``DOZERLAB_MLFLOW_WAIT`` seconds (default 120), before a job gives up with an
 error that names the server. A job running under SLURM tags its run with ``slurm_job_id``.
+
+The parent run of one workflow invocation: the Snakefile's ``onstart`` handler (which Snakemake
+calls only when jobs will run) starts it (:func:`start_parent_run`, ``dozerlab mlflow-start``)
+before any job does, so the experiment and a fresh SQLite store are created once, not raced by
+parallel jobs; it exports the run id as ``DOZERLAB_PARENT_RUN_ID``. ``onsuccess`` / ``onerror``
+end it FINISHED / FAILED (:func:`end_parent_run`, ``dozerlab mlflow-end``) and attach the
+artifacts (the report, Snakemake's log) that this invocation wrote.
 """
 
 from __future__ import annotations
@@ -17,12 +24,15 @@ import os
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
+from pathlib import Path
 from typing import Any
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
 DEFAULT_URI = "sqlite:///mlflow.db"
+#: How a parent run may end (``dozerlab mlflow-end --status``).
+STATUSES = ("FINISHED", "FAILED", "KILLED")
 WAIT_ENV = "DOZERLAB_MLFLOW_WAIT"
 DEFAULT_WAIT_S = 120.0
 MAX_WAIT_S = 86400.0
@@ -101,12 +111,12 @@ def wait_for_server(uri: str, limit_s: float) -> None:
         interval = min(2 * interval, 8.0)
 
 
-def configure(experiment: str = "dozerlab", parent_run_id: str | None = None) -> str:
+def configure(experiment: str = "dozerlab", parent: str | None = None) -> str:
     """Point MLflow at the tracking store and experiment; return the experiment id.
 
-    With ``parent_run_id`` the experiment is the parent run's, whatever ``experiment`` says: a
-    job whose command is not given the config's ``mlflow.experiment`` (bed, simulate) still lands
-    beside its parent. A tracking server is first waited for (:func:`wait_for_server`).
+    With a ``parent`` run id the experiment is the parent's, whatever ``experiment`` says: a
+    child run outside its parent's experiment would not show under it. A tracking server is
+    first waited for (:func:`wait_for_server`).
     """
     import mlflow
 
@@ -114,9 +124,9 @@ def configure(experiment: str = "dozerlab", parent_run_id: str | None = None) ->
     wait_for_server(uri, wait_limit())
     mlflow.set_tracking_uri(uri)
     with _store_lock(uri):
-        if parent_run_id:
-            parent = mlflow.MlflowClient().get_run(parent_run_id)
-            return mlflow.set_experiment(experiment_id=parent.info.experiment_id).experiment_id
+        if parent is not None:
+            experiment_id = mlflow.get_run(parent).info.experiment_id
+            return mlflow.set_experiment(experiment_id=experiment_id).experiment_id
         return mlflow.set_experiment(experiment).experiment_id
 
 
@@ -143,9 +153,10 @@ def tracked_run(
 ) -> Iterator[Any]:
     """Open an MLflow run for one job; yields the active run, or None when tracking is off.
 
-    ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag make runs filterable in
-    ``mlflow ui``; ``params`` may be nested (config sections) and are flattened. A job that
-    raises leaves its run marked FAILED.
+    The run goes into ``experiment``, or, under a parent run (``DOZERLAB_PARENT_RUN_ID``), into
+    the parent's experiment. ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag
+    make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
+    flattened. A job that raises leaves its run marked FAILED.
     """
     if not enabled():
         yield None
@@ -163,3 +174,73 @@ def tracked_run(
         if params:
             mlflow.log_params(flatten(params))
         yield run
+
+
+def job_run(
+    config: Mapping[str, Any] | None,
+    name: str,
+    *,
+    rule: str,
+    tags: Mapping[str, Any] | None = None,
+    params: Mapping[str, Any] | None = None,
+) -> AbstractContextManager[Any]:
+    """:func:`tracked_run` as a job's validated ``config`` asks: no run (None) when
+    ``mlflow.enabled`` is false, else one in ``mlflow.experiment``. Every job opens its run so."""
+    cfg = (config or {}).get("mlflow", {})
+    if not cfg.get("enabled", True):
+        return nullcontext(None)
+    experiment = cfg.get("experiment", "dozerlab")
+    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment)
+
+
+def start_parent_run(
+    experiment: str,
+    name: str,
+    *,
+    config: Mapping[str, Any] | None = None,
+    tags: Mapping[str, str] | None = None,
+) -> str:
+    """Create the experiment if needed and a RUNNING parent run in it; return the run id.
+
+    ``config`` (the validated config) is logged flattened as the run's params. When
+    ``DOZERLAB_PARENT_RUN_ID`` is already set (the workflow itself runs inside a tracked run),
+    the new run is nested under that one.
+    """
+    from mlflow import MlflowClient
+    from mlflow.entities import Param
+
+    experiment_id = configure(experiment)
+    client = MlflowClient()
+    all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
+    outer = os.environ.get(PARENT_ENV)
+    if outer:
+        all_tags["mlflow.parentRunId"] = outer
+    run = client.create_run(experiment_id, tags=all_tags, run_name=name)
+    if config:
+        params = [Param(k, v) for k, v in flatten(config).items()]
+        for i in range(0, len(params), 100):  # MLflow takes at most 100 params per batch
+            client.log_batch(run.info.run_id, params=params[i : i + 100])
+    return run.info.run_id
+
+
+def end_parent_run(
+    run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()
+) -> list[Path]:
+    """End the parent run with ``status``, logging each of ``artifacts`` written since it began.
+
+    Paths that do not exist, or that are older than the run (a report this invocation did not
+    rebuild), are skipped. Returns the paths logged.
+    """
+    if status not in STATUSES:
+        raise ValueError(f"status must be one of {STATUSES}, got '{status}'")
+    from mlflow import MlflowClient
+
+    client = MlflowClient(tracking_uri=os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI))
+    started = client.get_run(run_id).info.start_time / 1000.0
+    logged = []
+    for path in map(Path, artifacts):
+        if path.is_file() and path.stat().st_mtime >= started:
+            client.log_artifact(run_id, str(path))
+            logged.append(path)
+    client.set_terminated(run_id, status=status)
+    return logged

@@ -6,62 +6,15 @@ import numpy as np
 import pytest
 
 from dozerlab.cli import main
-from dozerlab.config import load_config
 from dozerlab.fields.store import open_store
-
-CONFIG = {
-    "solver": {"dt": 0.01, "iterations": 30},
-    "material": {"youngs_modulus": 0.0},
-    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
-    "scenarios": {"hill": {"goal_height": 0.08}},
-    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
-    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
-    "sampling": {
-        "length": 0.3,
-        "below_edge": 0.05,
-        "bins": [6, 5, 4],
-        "every": 2,
-        "chunk_steps": 8,
-        "vtk_every": 10,
-    },
-}
-
-
-def _lattice_bed(config: dict):
-    """A settled-looking bed: a cubic lattice of touching spheres 0.18 m high (≈ 200 particles)."""
-    from dozerlab.scenarios.bed import Bed
-
-    r = 0.03
-    xs = np.arange(r, 0.8 - r + 1e-9, 2 * r)
-    ys = np.arange(-0.18 + r, 0.18 - r + 1e-9, 2 * r)
-    zs = np.arange(r, 0.18, 2 * r)
-    pos = np.array(np.meshgrid(xs, ys, zs, indexing="ij")).reshape(3, -1).T
-    radii = np.full(len(pos), r)
-    zeros = np.zeros_like(pos)
-    return Bed(
-        scenario="hill",
-        length=0.8,
-        width=0.36,
-        positions=pos,
-        radii=radii,
-        masses=config["material"]["density"] * 4 / 3 * np.pi * radii**3,
-        velocities=zeros,
-        angular_velocities=zeros,
-        material=dict(config["material"]),
-        seed=1,
-    )
+from tests.helpers import TINY_RUN as CONFIG
+from tests.helpers import write_tiny_run
 
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
-    from dozerlab.scenarios.trajectory import plan_trajectory
-
     tmp = tmp_path_factory.mktemp("run")
-    config = load_config(CONFIG)
-    bed = _lattice_bed(config)
-    bed.save(tmp / "bed.npz")
-    traj = plan_trajectory(bed, 0.5, 0.06, config)
-    traj.save_csv(tmp / "speed~0.5_depth~0.06.csv")
+    _, bed, traj = write_tiny_run(tmp)
     return tmp, bed, traj
 
 

@@ -7,8 +7,7 @@ from dozerlab.learn.models import ForceModel
 from dozerlab.learn.train import Batches, fit_normalization
 from dozerlab.learn.validate import check_no_leak
 from dozerlab.runtime import DozerlabError
-
-from .conftest import in_memory
+from tests.helpers import in_memory
 
 
 def test_split_is_a_trailing_block_per_store_and_history_stays_in_store():

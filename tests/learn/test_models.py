@@ -7,8 +7,7 @@ from dozerlab.learn.models import ForceModel
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.learn.train import TrainingDiverged, train_model
 from dozerlab.learn.validate import predict_store
-
-from .conftest import in_memory
+from tests.helpers import in_memory
 
 
 @pytest.mark.parametrize("kind", ["linear", "mlp", "cnn", "unet"])

@@ -50,8 +50,7 @@ def test_mirrored_training_still_learns_the_symmetric_loads(train_stores, config
     from dozerlab.learn.metrics import component_metrics
     from dozerlab.learn.train import train_model
     from dozerlab.learn.validate import predict_store
-
-    from .conftest import in_memory
+    from tests.helpers import in_memory
 
     def symmetric(store):  # the synthetic fill is y-symmetric in law; make the loads so too
         store.target[:, [1, 3, 5]] = 0.0

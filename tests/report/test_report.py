@@ -1,75 +1,18 @@
-"""The report and the sweep's naming, on synthetic results (no simulation)."""
+"""The report, on synthetic results (no simulation)."""
 
 import json
 import re
 
 import numpy as np
-import pytest
 from matplotlib.figure import Figure
 
 from dozerlab import sweep as P
-from dozerlab.config import ConfigError, load_config
+from dozerlab.config import load_config
 from dozerlab.fields.store import write_store
 from dozerlab.report.build import build_report, inline_images
+from tests.helpers import SMALL_SWEEP
 
-CFG = load_config(
-    {
-        "sweep": {
-            "scenarios": ["hill"],
-            "speeds": [0.5, 1.0],
-            "depths": [0.1],
-            "interpolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.1}],
-            "extrapolation": [{"scenario": "hill", "speed": 2.0, "depth": 0.1}],
-        },
-        "learn": {"models": ["linear"]},
-    }
-)
-
-
-@pytest.mark.parametrize(
-    ("value", "text"), [(1.0, "1.0"), (0.1, "0.1"), (0.05, "0.05"), (1e-5, "0.00001"), (20, "20.0")]
-)
-def test_numbers_round_trip(value, text):
-    assert P.fmt_number(value) == text
-    assert P.check_canonical("speed", text) == pytest.approx(value)
-    assert re.fullmatch(P.NUMBER_PATTERN, text)
-
-
-@pytest.mark.parametrize("text", ["1", "1.00", "01.0"])
-def test_non_canonical_spelling_names_the_canonical_one(text):
-    with pytest.raises(ValueError, match=r"speed~1\.0"):
-        P.check_canonical("speed", text)
-
-
-def test_sweep_points_and_paths():
-    pts = P.sweep_points(CFG)
-    assert [(p.role, p.name) for p in pts] == [
-        ("train", "speed~0.5_depth~0.1"),
-        ("train", "speed~1.0_depth~0.1"),
-        ("interpolation", "speed~0.75_depth~0.1"),
-        ("extrapolation", "speed~2.0_depth~0.1"),
-    ]
-    assert str(P.field_path("results", pts[1])) == "results/fields/hill/speed~1.0_depth~0.1.zarr"
-    assert (
-        str(P.trajectory_path("results", pts[1], "png"))
-        == "results/trajectories/hill/speed~1.0_depth~0.1.png"
-    )
-    back = P.parse_point("results/fields/hill/speed~1.0_depth~0.1.zarr")
-    assert (back.scenario, back.speed, back.depth) == ("hill", 1.0, 0.1)
-
-
-def test_held_out_point_on_the_grid_is_refused():
-    cfg = load_config(
-        {
-            "sweep": {
-                "speeds": [1.0],
-                "depths": [0.1],
-                "extrapolation": [{"scenario": "step", "speed": 1.0, "depth": 0.1}],
-            }
-        }
-    )
-    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\.0"):
-        P.sweep_points(cfg)
+CFG = load_config(SMALL_SWEEP)
 
 
 def _png(path, title):

@@ -4,9 +4,9 @@ import json
 import numpy as np
 import pytest
 
+from dozerlab.config import schema
 from dozerlab.runtime import DozerlabError
-from dozerlab.scenarios.bed import Bed
-from dozerlab.scenarios.blade import BladeGeometry, centre_to_tip, tip_to_centre
+from dozerlab.scenarios.bed import SCENARIOS, Bed
 
 
 def test_save_load_round_trip_without_pickle(hill_bed, tmp_path):
@@ -93,10 +93,9 @@ def test_kinetic_energy_counts_translation_and_rotation():
     )
 
 
-def test_blade_tip_centre_conversion(config):
-    g = BladeGeometry.from_config(config)
-    tip = np.array([0.3, 0.0, 0.2])
-    centre = tip_to_centre(tip, g)
-    np.testing.assert_allclose(centre, tip + [-g.thickness / 2, 0.0, g.height / 2])
-    np.testing.assert_allclose(centre_to_tip(centre, g), tip)
-    np.testing.assert_allclose(g.half_extents, [g.thickness / 2, g.width / 2, g.height / 2])
+def test_scenario_names_are_the_schemas():
+    sweep = schema()["properties"]["sweep"]["properties"]
+    assert tuple(sweep["scenarios"]["items"]["enum"]) == SCENARIOS
+    for role in ("interpolation", "extrapolation"):
+        assert tuple(sweep[role]["items"]["properties"]["scenario"]["enum"]) == SCENARIOS
+    assert tuple(schema()["properties"]["scenarios"]["properties"]) == SCENARIOS

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from dozerlab.config import load_config
-from dozerlab.scenarios import add_blade, build_bed, make_world, start_tip
+from dozerlab.scenarios.blade import add_blade, start_tip
+from dozerlab.scenarios.build import build_bed, make_world
 from dozerlab.scenarios.heightfield import height_field
 
 SMALL = {

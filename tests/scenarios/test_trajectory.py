@@ -116,7 +116,7 @@ def test_missing_or_foreign_csv_is_refused(tmp_path):
 
 
 def test_plot_writes_png(step_bed, config, tmp_path):
-    from dozerlab.scenarios.trajectory import plot_trajectory
+    from dozerlab.scenarios.plots import plot_trajectory
 
     plot_trajectory(plan_trajectory(step_bed, 1.0, 0.1, config), tmp_path / "t.png")
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

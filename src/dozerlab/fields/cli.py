@@ -78,7 +78,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from dozerlab.runtime import set_threads
 
     set_threads(args.threads)
-    from dozerlab.fields.run import simulate
+    from dozerlab.fields.jobs import simulate
 
     simulate(
         args.bed,

@@ -56,12 +56,14 @@ def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, fl
     if size < HEADER_BYTES:
         raise ValueError(f"{path}: truncated header: {size} bytes, the header needs {HEADER_BYTES}")
     header = np.fromfile(path, dtype=_HEADER, count=1)[0]
-    bins = tuple(int(n) for n in header["bins"])
+    nx, ny, nz = (int(n) for n in header["bins"])
+    bins = (nx, ny, nz)
     if min(bins) < 1 or max(bins) > 4096:
         raise ValueError(
             f"{path}: bin counts {bins} at byte offset 0 are outside 1..4096 (not a legacy field file?)"
         )
-    bin_size = tuple(float(s) for s in header["bin_size"])
+    sx, sy, sz = (float(s) for s in header["bin_size"])
+    bin_size = (sx, sy, sz)
     if not all(np.isfinite(s) and 0 < s < 1e3 for s in bin_size):
         raise ValueError(f"{path}: bin sizes {bin_size} at byte offset 12 are not in (0, 1000) m")
     record = _record_dtype(bins).itemsize
@@ -72,7 +74,7 @@ def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, fl
             f"{path}: truncated at step {steps}: the record starting at byte offset {offset} needs "
             f"{record} bytes but only {rest} remain (header says {bins} bins)"
         )
-    return bins, bin_size, steps  # type: ignore[return-value]
+    return bins, bin_size, steps
 
 
 def import_legacy(

@@ -164,7 +164,7 @@ class _Task:
                 raise ValueError(f"{self.file}: shard index points past the chunk data")
             data = self._buffer("data", hi - lo)
             f.seek(lo)
-            if f.readinto(memoryview(data)) != hi - lo:
+            if f.readinto(data.data) != hi - lo:
                 raise ValueError(f"{self.file}: shard ends inside its chunk data")
         step = int(np.prod(lay.shape[1:])) * 4
         for k, (offset, nbytes) in enumerate(index, start=self.first):
@@ -172,7 +172,7 @@ class _Task:
             if offset == _MISSING:
                 out[a - start : b - start] = lay.fill_value
                 continue
-            src = memoryview(data)[int(offset) - lo : int(offset + nbytes) - lo]
+            src = data.data[int(offset) - lo : int(offset + nbytes) - lo]
             # Edge chunks are stored whole (padded with fill): decode aside, copy the rows used.
             if (a, b) == (c0, c0 + lay.inner_steps):
                 _decode(src, out[a - start : b - start], lay.compressed, str(self.file))

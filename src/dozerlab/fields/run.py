@@ -1,28 +1,30 @@
-"""``dozerlab simulate``: drive the blade along a trajectory through a bed and record the fields.
+"""The simulation run: drive the blade along a trajectory through a bed and record the fields.
 
 Each solver step the blade gets the trajectory's velocity for that step; every
 ``sampling.every``-th step the fields in front of the blade, the blade force and torque (about
 the tip), its velocity and tip position are appended to the field store, which is written while
-the run goes (one chunk in memory) and appears only when the run succeeds.
+the run goes (one chunk in memory) and appears only when the run succeeds. The job around it
+(loading, labels, MLflow, plots) is :func:`dozerlab.fields.jobs.simulate`.
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 import time as wallclock
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
 
-from dozerlab import __version__
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.fields.store import FieldStoreWriter, open_store
+from dozerlab.fields.store import FieldStoreWriter
 from dozerlab.runtime import DozerlabError, atomic_output
+
+if TYPE_CHECKING:
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -63,12 +65,6 @@ class RunStats:
         return out
 
 
-def _from_name(path: Path, key: str) -> float | None:
-    """A ``key~value`` number in a workflow file name such as ``speed~1.0_depth~0.1.csv``."""
-    m = re.search(rf"{key}~([0-9.eE+-]+?)(?:_|\.csv$|$)", path.name)
-    return float(m.group(1)) if m else None
-
-
 def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
     import meshio
 
@@ -82,78 +78,22 @@ def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
         meshio.write(tmp, mesh, file_format="vtu")
 
 
-def simulate(
-    bed_path: str | Path,
-    trajectory_path: str | Path,
+def drive(
+    bed: Bed,
+    traj: Trajectory,
     config: dict[str, Any],
-    out: str | Path,
-    *,
-    scenario: str | None = None,
-    speed: float | None = None,
-    depth: float | None = None,
+    grid: SamplingGrid,
+    attrs: dict[str, Any],
+    out: Path,
     vtk_dir: str | Path | None = None,
-    plots_dir: str | Path | None = None,
     log_every: int | None = None,
-) -> dict[str, float]:
-    """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
+) -> RunStats:
+    """The stepping loop: move the blade, step, sample, append to the store ``out`` (with
+    ``attrs``); VTK snapshots to ``vtk_dir`` every ``sampling.vtk_every`` steps; a log line every
+    ``log_every`` steps (default: 20 in the run). Returns the :class:`RunStats`.
 
-    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
-    the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
-    name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
-    slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
-    simulation diverges, leaving no store.
+    Raises :class:`DozerlabError` when the simulation diverges, leaving no store.
     """
-    from dozerlab import tracking
-    from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.trajectory import Trajectory
-
-    bed = Bed.load(bed_path)
-    traj = Trajectory.load_csv(trajectory_path)
-    dt = float(config["solver"]["dt"])
-    if not np.isclose(traj.dt, dt, rtol=1e-6):
-        raise ValueError(
-            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
-        )
-    scenario = scenario or bed.scenario
-    speed = (
-        speed
-        if speed is not None
-        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
-    )
-    depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
-    s = config["sampling"]
-    grid = SamplingGrid.from_config(config)
-    attrs = {
-        "scenario": scenario,
-        "speed": speed,
-        "depth": depth,
-        "bins": list(grid.bins),
-        "bin_size": list(grid.bin_size),
-        "dt": dt,
-        "iterations": int(config["solver"]["iterations"]),
-        "sample_every": int(s["every"]),
-        "particle_count": bed.count,
-        "seed": int(config["seed"]),
-        "dozerlab_version": __version__,
-        "config": json.dumps(config, sort_keys=True),
-    }
-    params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
-    name = f"simulate {scenario} v={speed} d={depth}"
-    with tracking.tracked_run(
-        name,
-        rule="simulate",
-        tags={"scenario": scenario, "speed": speed, "depth": depth},
-        params=params,
-    ) as run:
-        stats = _drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every)
-        metrics = stats.metrics(bed.count)
-        log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
-        _plots_and_metrics(Path(out), plots_dir, metrics, run)
-    return metrics
-
-
-def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ignore[no-untyped-def]
-    """The stepping loop: move the blade, step, sample, append; returns the :class:`RunStats`."""
     from dozerlab.ndem import DivergenceError
     from dozerlab.scenarios.blade import BladeGeometry, add_blade
     from dozerlab.scenarios.build import make_world
@@ -223,21 +163,3 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
                 window.clear()
     stats.wall_time = wallclock.perf_counter() - start
     return stats
-
-
-def _plots_and_metrics(
-    out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any
-) -> None:
-    """Log the metrics to the MLflow ``run``; with ``plots_dir``, plot the store there and log
-    the plots too. Plots are drawn only on request: the report draws its own from the store."""
-    if run is not None:
-        import mlflow
-
-        mlflow.log_metrics(metrics)
-    if plots_dir is None:
-        return
-    from dozerlab.fields.plots import plot_run
-
-    plot_run(open_store(out), Path(plots_dir), animation=False)
-    if run is not None:
-        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")

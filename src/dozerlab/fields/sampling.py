@@ -116,11 +116,11 @@ class SamplingGrid:
     def from_config(cls, config: Mapping[str, Any]) -> SamplingGrid:
         """The grid of a validated config's ``sampling`` and ``blade`` sections."""
         s, b = config["sampling"], config["blade"]
-        extent = (s["length"], b["width"], b["height"] + s["below_edge"])
-        bins = tuple(int(n) for n in s["bins"])
+        nx, ny, nz = (int(n) for n in s["bins"])
+        height = b["height"] + s["below_edge"]
         return cls(
-            bins=bins,  # type: ignore[arg-type]
-            bin_size=tuple(e / n for e, n in zip(extent, bins, strict=True)),  # type: ignore[arg-type]
+            bins=(nx, ny, nz),
+            bin_size=(s["length"] / nx, b["width"] / ny, height / nz),
             lower=(0.0, -b["width"] / 2, -s["below_edge"]),
         )
 
@@ -131,12 +131,22 @@ class SamplingGrid:
 
     def centres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Bin-centre coordinates (x (Nx,), y (Ny,), z (Nz,)) in the blade frame, m."""
-        return tuple(  # type: ignore[return-value]
+        x, y, z = (
             lo + (np.arange(n) + 0.5) * size
             for lo, n, size in zip(self.lower, self.bins, self.bin_size, strict=True)
         )
+        return x, y, z
 
-    def _sums(self, positions, velocities, radii, masses, tip):  # type: ignore[no-untyped-def]
+    def _sums(
+        self,
+        positions: np.ndarray,
+        velocities: np.ndarray,
+        radii: np.ndarray,
+        masses: np.ndarray,
+        tip: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, 3) and Σw·m (Nx, Ny, Nz) of the particles' algorithm-1
+        weights w per bin (:func:`_accumulate`)."""
         positions = np.ascontiguousarray(positions, dtype=np.float64)
         velocities = np.ascontiguousarray(velocities, dtype=np.float64)
         radii = np.ascontiguousarray(radii, dtype=np.float64)

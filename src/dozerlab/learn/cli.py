@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.learn.names import MODEL_NAMES
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train one force/torque model on field stores")
-    p.add_argument(
-        "--model", required=True, choices=["linear", "mlp", "cnn", "unet"], help="model name"
-    )
+    p.add_argument("--model", required=True, choices=MODEL_NAMES, help="model name")
     p.add_argument(
         "--train", required=True, nargs="+", metavar="F.zarr", help="training field stores"
     )

@@ -45,7 +45,8 @@ class StoreData:
 
     @property
     def grid(self) -> tuple[int, int, int]:
-        return tuple(int(n) for n in self.density.shape[1:4])  # type: ignore[return-value]
+        nx, ny, nz = (int(n) for n in self.density.shape[1:4])
+        return nx, ny, nz
 
     @property
     def name(self) -> str:
@@ -127,14 +128,14 @@ def check_grid(
     """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch."""
     if not stores:
         raise ValueError("no field stores given (at least one is needed)")
-    expected = tuple(grid) if grid is not None else stores[0].grid
+    expected = stores[0].grid if grid is None else (int(grid[0]), int(grid[1]), int(grid[2]))
     for s in stores:
         if s.grid != expected:
             raise DozerlabError(
                 f"field store {s.source or s.name} has a {s.grid} grid but the model expects {expected}; "
                 "models only apply to stores sampled with the same sampling.bins"
             )
-    return expected  # type: ignore[return-value]
+    return expected
 
 
 @dataclass

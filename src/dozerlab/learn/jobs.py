@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import tempfile
 from pathlib import Path
@@ -16,15 +15,6 @@ from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import TrainResult, train_model
 from dozerlab.learn.validate import evaluate, html_section, load_groups, strip_series, validate
 from dozerlab.runtime import atomic_output
-
-
-def _run(
-    config: dict[str, Any] | None, name: str, **kwargs: Any
-) -> contextlib.AbstractContextManager[Any]:
-    cfg = (config or {}).get("mlflow", {})
-    if not cfg.get("enabled", True):
-        return contextlib.nullcontext(None)
-    return tracking.tracked_run(name, experiment=cfg.get("experiment", "dozerlab"), **kwargs)
 
 
 def train_job(
@@ -53,7 +43,9 @@ def train_job(
         "learn": config["learn"],
         "train_stores": ",".join(str(p) for p in train),
     }
-    with _run(config, f"train {kind}", rule="train", tags={"model": kind}, params=params) as run:
+    with tracking.job_run(
+        config, f"train {kind}", rule="train", tags={"model": kind}, params=params
+    ) as run:
         log_epoch = None
         if run is not None:
 
@@ -117,7 +109,7 @@ def validate_job(
         "interpolation": ",".join(map(str, interpolation)),
         "extrapolation": ",".join(map(str, extrapolation)),
     }
-    with _run(
+    with tracking.job_run(
         config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)

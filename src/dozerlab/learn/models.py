@@ -22,7 +22,6 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-MODEL_NAMES = ("linear", "mlp", "cnn", "unet")
 #: Channels of each history step: v − v_b (3), ρ (1), ρ(v − v_b) (3), ρv (3).
 CHANNELS_PER_STEP = 10
 #: Channels of the change since the step before, for every step but the oldest: Δρ (1), Δ(ρv) (3).
@@ -60,6 +59,11 @@ class LinearHead(nn.Module):
     ones, so the prediction for a mirrored sample is exactly the mirrored prediction. Each target
     has Ny× fewer weights than in a ridge on every bin, and it generalises better (BENCHMARKS.md).
     """
+
+    y_coord: torch.Tensor
+    chan_odd: torch.Tensor
+    cond_odd: torch.Tensor
+    target_odd: torch.Tensor
 
     def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int]) -> None:
         super().__init__()
@@ -132,7 +136,7 @@ class ThesisCNN(nn.Module):
         self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 8
     ) -> None:
         super().__init__()
-        self.grid = tuple(grid)
+        self.grid = grid
         self.stem = _same2(in_channels, width)
         self.branches = nn.ModuleList(_same2(width, width) for _ in range(3))
         self.mix = nn.Conv3d(width, width, 1)
@@ -171,11 +175,13 @@ class ForceDensityUNet(nn.Module):
     each bin the context of the material around it, the skips keep the local detail.
     """
 
+    coords: torch.Tensor
+
     def __init__(
         self, in_channels: int, cond: int, grid: tuple[int, int, int], width: int = 16
     ) -> None:
         super().__init__()
-        self.grid = tuple(grid)
+        self.grid = grid
         axes = [torch.linspace(-1.0, 1.0, n) for n in grid]
         self.register_buffer(
             "coords", torch.stack(torch.meshgrid(*axes, indexing="ij")), persistent=False
@@ -210,6 +216,7 @@ class ForceDensityUNet(nn.Module):
         return density.mean(dim=(2, 3, 4)) + self.cond_head(c)
 
 
+#: One backbone per name in :data:`dozerlab.learn.names.MODEL_NAMES`, in that order.
 BACKBONES: dict[str, Callable[..., nn.Module]] = {
     "linear": LinearHead,
     "mlp": MLP,
@@ -225,11 +232,19 @@ class ForceModel(nn.Module):
     (B, H, 3))``, float32, H = ``history`` steps oldest first.
     """
 
+    chan_mean: torch.Tensor
+    chan_std: torch.Tensor
+    cond_mean: torch.Tensor
+    cond_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+
     def __init__(self, kind: str, grid: tuple[int, int, int], history: int = 1) -> None:
         super().__init__()
         if kind not in BACKBONES:
             raise ValueError(f"model must be one of {list(BACKBONES)}, got {kind!r}")
-        self.kind, self.grid, self.history = kind, tuple(int(n) for n in grid), int(history)
+        nx, ny, nz = (int(n) for n in grid)
+        self.kind, self.grid, self.history = kind, (nx, ny, nz), int(history)
         c_in, cond = n_channels(self.history), 3 * self.history
         self.backbone = BACKBONES[kind](c_in, cond, self.grid)
         for name, n in (("chan_mean", c_in), ("cond_mean", cond), ("y_mean", OUTPUTS)):

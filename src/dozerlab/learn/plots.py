@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from dozerlab.runtime import atomic_output
 
 
-def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6):  # type: ignore[no-untyped-def]
+def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6) -> tuple[Any, Any, Any]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -18,7 +19,7 @@ def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6):  # type: i
     return plt, *plt.subplots(1, ncols, figsize=(width * ncols, height), squeeze=False)
 
 
-def _save(plt, fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
+def _save(plt: Any, fig: Any, path: Path) -> Path:
     fig.tight_layout()
     with atomic_output(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")

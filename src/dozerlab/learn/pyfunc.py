@@ -26,6 +26,7 @@ import mlflow
 import numpy as np
 import pandas as pd
 import torch
+from mlflow.pyfunc.model import PythonModel
 
 from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.models import ForceModel
@@ -92,14 +93,14 @@ def predict_arrays(
 # script that loads a model, under a filter of its own, so the warning is caught, not filtered.
 with warnings.catch_warnings(record=True) as _caught:
 
-    class ForcePyfunc(mlflow.pyfunc.PythonModel):
+    class ForcePyfunc(PythonModel):
         """MLflow pyfunc wrapper around a :class:`ForceModel`."""
 
         def load_context(self, context: Any) -> None:
             meta = json.loads(Path(context.artifacts["meta"]).read_text())
             self.model = build(meta, context.artifacts["weights"])
 
-        def predict(self, context, model_input, params=None):  # type: ignore[no-untyped-def]
+        def predict(self, context, model_input, params=None):
             """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step input arrays."""
             return pd.DataFrame(predict_arrays(self.model, model_input), columns=list(TARGET_NAMES))
 

@@ -43,51 +43,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _bed(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
     from dozerlab.runtime import set_threads
-    from dozerlab.scenarios.bed import SCENARIOS
 
-    if args.scenario not in SCENARIOS:
-        raise ValueError(f"--scenario must be one of {list(SCENARIOS)}, got {args.scenario!r}")
     config = load_config(args.config)
     set_threads(args.threads)
+    from dozerlab.scenarios.jobs import bed_job
 
-    from dozerlab.scenarios.build import build_bed
-    from dozerlab.scenarios.plots import plot_bed
-    from dozerlab.tracking import tracked_run
-
-    params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
-    params["scenario"] = config["scenarios"][args.scenario]
-    with tracked_run(
-        f"bed {args.scenario}", rule="bed", tags={"scenario": args.scenario}, params=params
-    ) as run:
-        bed = build_bed(args.scenario, config, progress=args.progress)
-        bed.save(args.out)
-        if args.plot:
-            plot_bed(bed, args.plot)
-        if run is not None:
-            import mlflow
-
-            mlflow.log_metrics(
-                {
-                    "particle_count": bed.count,
-                    "settle_time": bed.info["time"],
-                    "kinetic_energy_per_particle": bed.kinetic_energy_per_particle(),
-                    "wall_time": bed.info["wall_time"],
-                    "steps": bed.info["steps"],
-                }
-            )
-            if args.plot:
-                mlflow.log_artifact(args.plot)
+    bed_job(args.scenario, config, args.out, plot=args.plot, progress=args.progress)
     return 0
 
 
 def _trajectory(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
-    from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.trajectory import plan_trajectory, plot_trajectory
+    from dozerlab.scenarios.jobs import trajectory_job
 
-    config = load_config(args.config)
-    traj = plan_trajectory(Bed.load(args.bed), args.speed, args.depth, config)
-    traj.save_csv(args.out)
-    if args.plot:
-        plot_trajectory(traj, args.plot)
+    trajectory_job(
+        args.bed, args.speed, args.depth, load_config(args.config), args.out, plot=args.plot
+    )
     return 0

@@ -35,9 +35,6 @@ from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.blade import start_tip
 from dozerlab.scenarios.filters import smooth_height
 from dozerlab.scenarios.heightfield import height_field
-from dozerlab.scenarios.plots import plot_trajectory
-
-__all__ = ["Trajectory", "cut_path", "plan_trajectory", "plot_trajectory", "walk_path"]
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
 

@@ -1,0 +1,118 @@
+"""The fields layer's job: ``dozerlab simulate`` (load → run → record in MLflow → save).
+
+:func:`simulate` loads the bed and the trajectory, labels the store, runs the stepping loop
+(:func:`dozerlab.fields.run.drive`) inside a tracked MLflow run and logs the run's metrics
+and plots.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab import __version__
+from dozerlab.fields.run import drive
+from dozerlab.fields.sampling import SamplingGrid
+from dozerlab.fields.store import open_store
+
+log = logging.getLogger(__name__)
+
+
+def _from_name(path: Path, key: str) -> float | None:
+    """A ``key~value`` number in a workflow file name such as ``speed~1.0_depth~0.1.csv``."""
+    m = re.search(rf"{key}~([0-9.eE+-]+?)(?:_|\.csv$|$)", path.name)
+    return float(m.group(1)) if m else None
+
+
+def simulate(
+    bed_path: str | Path,
+    trajectory_path: str | Path,
+    config: dict[str, Any],
+    out: str | Path,
+    *,
+    scenario: str | None = None,
+    speed: float | None = None,
+    depth: float | None = None,
+    vtk_dir: str | Path | None = None,
+    plots_dir: str | Path | None = None,
+    log_every: int | None = None,
+) -> dict[str, float]:
+    """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
+
+    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
+    the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
+    name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
+    slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
+    simulation diverges, leaving no store.
+    """
+    from dozerlab import tracking
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.trajectory import Trajectory
+
+    bed = Bed.load(bed_path)
+    traj = Trajectory.load_csv(trajectory_path)
+    dt = float(config["solver"]["dt"])
+    if not np.isclose(traj.dt, dt, rtol=1e-6):
+        raise ValueError(
+            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
+        )
+    scenario = scenario or bed.scenario
+    speed = (
+        speed
+        if speed is not None
+        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
+    )
+    depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
+    s = config["sampling"]
+    grid = SamplingGrid.from_config(config)
+    attrs = {
+        "scenario": scenario,
+        "speed": speed,
+        "depth": depth,
+        "bins": list(grid.bins),
+        "bin_size": list(grid.bin_size),
+        "dt": dt,
+        "iterations": int(config["solver"]["iterations"]),
+        "sample_every": int(s["every"]),
+        "particle_count": bed.count,
+        "seed": int(config["seed"]),
+        "dozerlab_version": __version__,
+        "config": json.dumps(config, sort_keys=True),
+    }
+    params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
+    name = f"simulate {scenario} v={speed} d={depth}"
+    with tracking.job_run(
+        config,
+        name,
+        rule="simulate",
+        tags={"scenario": scenario, "speed": speed, "depth": depth},
+        params=params,
+    ) as run:
+        stats = drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every)
+        metrics = stats.metrics(bed.count)
+        log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
+        _plots_and_metrics(Path(out), plots_dir, metrics, run)
+    return metrics
+
+
+def _plots_and_metrics(
+    out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any
+) -> None:
+    """Log the metrics to the MLflow ``run``; with ``plots_dir``, plot the store there and log
+    the plots too. Plots are drawn only on request: the report draws its own from the store."""
+    if run is not None:
+        import mlflow
+
+        mlflow.log_metrics(metrics)
+    if plots_dir is None:
+        return
+    from dozerlab.fields.plots import plot_run
+
+    plot_run(open_store(out), Path(plots_dir), animation=False)
+    if run is not None:
+        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")

@@ -1,0 +1,73 @@
+"""The simulate job: labels, the MLflow record of the run, and the stepping loop's statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dozerlab.fields.jobs import simulate
+from dozerlab.fields.run import drive
+from dozerlab.fields.sampling import SamplingGrid
+from dozerlab.fields.store import ATTRS, open_store
+from tests.helpers import write_tiny_run
+
+
+@pytest.fixture(scope="module")
+def run_inputs(tmp_path_factory):
+    """The tiny run's files, the trajectory named like no sweep point: labels come from flags."""
+    tmp = tmp_path_factory.mktemp("job")
+    return tmp, *write_tiny_run(tmp, "path.csv")
+
+
+def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mlflow_store):
+    tmp, config, bed, _ = run_inputs
+    out = tmp / "f.zarr"
+    metrics = simulate(
+        tmp / "bed.npz",
+        tmp / "path.csv",
+        config,
+        out,
+        scenario="step",
+        speed=0.5,
+        depth=0.06,
+        plots_dir=tmp / "plots",
+    )
+    ds = open_store(out)
+    assert (ds.attrs["scenario"], ds.attrs["speed"], ds.attrs["depth"]) == ("step", 0.5, 0.06)
+    assert metrics["particle_count"] == bed.count and metrics["force_mag_peak"] > 0
+    assert metrics["force_x_mean"] == pytest.approx(float(ds["force"].values[:, 0].mean()))
+
+    client = mlflow_store
+    exp = client.get_experiment_by_name("dozerlab").experiment_id
+    (run,) = client.search_runs([exp])
+    assert run.info.status == "FINISHED" and run.info.run_name == "simulate step v=0.5 d=0.06"
+    assert {k: run.data.tags[k] for k in ("rule", "scenario", "speed", "depth")} == {
+        "rule": "simulate",
+        "scenario": "step",
+        "speed": "0.5",
+        "depth": "0.06",
+    }
+    assert run.data.params["sampling.bins"] == "[6, 5, 4]"
+    assert run.data.metrics["steps_per_s"] == pytest.approx(metrics["steps_per_s"])
+    logged = {a.path for a in client.list_artifacts(run.info.run_id, "plots")}
+    assert {"plots/force.png", "plots/slice_000000.png"} <= logged
+    assert {p.name for p in (tmp / "plots").iterdir()} == {p.split("/")[1] for p in logged}
+
+
+def test_drive_counts_steps_samples_and_forces(run_inputs, monkeypatch):
+    tmp, config, bed, traj = run_inputs
+    monkeypatch.setenv("DOZERLAB_MLFLOW", "0")
+    grid = SamplingGrid.from_config(config)
+    attrs = dict.fromkeys(ATTRS, 0) | {"scenario": "hill", "bins": list(grid.bins)}
+    stats = drive(bed, traj, config, grid, attrs, tmp / "d.zarr")
+    every = config["sampling"]["every"]
+    assert stats.steps == traj.steps
+    assert len(stats.forces) == traj.steps // every == open_store(tmp / "d.zarr").sizes["time"]
+    stored = open_store(tmp / "d.zarr")["force"].values  # float32 in the store
+    np.testing.assert_array_equal(np.array(stats.forces, dtype=np.float32), stored)
+    assert 0 < stats.step_time <= stats.wall_time and 0 < stats.sample_time < stats.wall_time
+    m = stats.metrics(bed.count)
+    assert m["steps_per_s"] == pytest.approx(traj.steps / stats.step_time)
+    assert m["contact_iterations_per_s"] == pytest.approx(
+        stats.contact_iterations / stats.step_time
+    )

@@ -1,0 +1,201 @@
+"""Helpers the tests share: synthetic beds and field stores built without physics (fast).
+
+Import them from here (``from tests.helpers import …``); conftest files hold only fixtures.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab.config import load_config
+from dozerlab.fields.store import write_store
+from dozerlab.learn.data import StoreData, from_arrays
+from dozerlab.scenarios.bed import Bed
+from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory
+
+#: A small sweep of one scenario: two training speeds, one interpolation and one
+#: extrapolation point, one model.
+SMALL_SWEEP = {
+    "sweep": {
+        "scenarios": ["hill"],
+        "speeds": [0.5, 1.0],
+        "depths": [0.1],
+        "interpolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.1}],
+        "extrapolation": [{"scenario": "hill", "speed": 2.0, "depth": 0.1}],
+    },
+    "learn": {"models": ["linear"]},
+}
+
+#: The grid of the synthetic field stores, (Nx, Ny, Nz).
+GRID = (8, 6, 4)
+
+
+def lattice_bed(
+    scenario: str,
+    profile: Callable[[float], float],
+    *,
+    length: float,
+    width: float,
+    radius: float,
+    seed: int = 0,
+    jitter: float = 0.0,
+    material: dict[str, float] | None = None,
+) -> Bed:
+    """A bed of equal spheres stacked in columns up to ``profile(x)`` (m), on a cubic lattice of
+    touching spheres over x ∈ [0, length], y ∈ [-width/2, width/2]; each sphere is shifted along
+    x by up to ``jitter`` radii (uniform, seeded). No physics, so it is built at once."""
+    rng = np.random.default_rng(seed)
+    points = []
+    for x in np.arange(radius, length - radius + 1e-9, 2 * radius):
+        for y in np.arange(-width / 2 + radius, width / 2 - radius + 1e-9, 2 * radius):
+            for z in np.arange(radius, max(profile(x) - radius, radius) + 1e-9, 2 * radius):
+                points.append((x + rng.uniform(-jitter, jitter) * radius, y, z))
+    pos = np.array(points)
+    n = len(pos)
+    material = dict(material or {"density": 2600.0})
+    radii = np.full(n, radius)
+    return Bed(
+        scenario,
+        length,
+        width,
+        pos,
+        radii,
+        material["density"] * 4.0 / 3.0 * np.pi * radii**3,
+        np.zeros((n, 3)),
+        np.zeros((n, 3)),
+        material,
+        seed,
+    )
+
+
+#: A run of a few seconds: a 0.8 m bed of 234 grains (:func:`tiny_bed`), 6×5×4 bins.
+TINY_RUN = {
+    "solver": {"dt": 0.01, "iterations": 30},
+    "material": {"youngs_modulus": 0.0},
+    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
+    "scenarios": {"hill": {"goal_height": 0.08}},
+    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
+    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
+    "sampling": {
+        "length": 0.3,
+        "below_edge": 0.05,
+        "bins": [6, 5, 4],
+        "every": 2,
+        "chunk_steps": 8,
+        "vtk_every": 10,
+    },
+}
+
+
+def tiny_bed(config: dict[str, Any]) -> Bed:
+    """The bed of :data:`TINY_RUN`: a lattice of touching spheres 0.18 m high (234 of them)."""
+    return lattice_bed(
+        "hill",
+        lambda x: 0.18,
+        length=0.8,
+        width=0.36,
+        radius=0.03,
+        seed=1,
+        material=dict(config["material"]),
+    )
+
+
+def write_tiny_run(
+    directory: Path, trajectory_name: str = "speed~0.5_depth~0.06.csv"
+) -> tuple[dict[str, Any], Bed, Trajectory]:
+    """Save the tiny run's bed (``bed.npz``) and a 0.5 m/s, 0.06 m deep trajectory
+    (``trajectory_name``) in ``directory``; return the validated config, the bed and the path."""
+    config = load_config(TINY_RUN)
+    bed = tiny_bed(config)
+    bed.save(directory / "bed.npz")
+    traj = plan_trajectory(bed, 0.5, 0.06, config)
+    traj.save_csv(directory / trajectory_name)
+    return config, bed, traj
+
+
+def synthetic(
+    speed: float,
+    depth: float,
+    *,
+    steps: int = 100,
+    grid=GRID,
+    seed: int = 0,
+    scenario: str = "hill",
+) -> dict[str, np.ndarray]:
+    """Fields of a pile whose fill grows with the depth; force = f(mass in front, speed)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps) * 0.02
+    fill = np.clip(
+        depth * 8 + 0.3 * np.sin(t * 3)[:, None, None, None] + rng.normal(0, 0.1, (steps, *grid)),
+        0,
+        None,
+    )
+    density = (1500 * fill).astype(np.float32)
+    vb = np.zeros((steps, 3), np.float32)
+    vb[:, 0] = speed * (1 + 0.1 * np.sin(t * 5))
+    velocity = (0.8 * vb[:, None, None, None, :] * (fill[..., None] > 0)).astype(np.float32)
+    velocity += rng.normal(0, 0.01, velocity.shape).astype(np.float32)
+    mass = density.sum(axis=(1, 2, 3)) * 1e-3
+    fx = mass * (1 + vb[:, 0])
+    force = np.stack([fx, 0.1 * fx, 0.5 * mass], axis=1)
+    torque = np.stack([0.2 * mass, -0.3 * fx, 0.05 * fx], axis=1)
+    return {
+        "time": t,
+        "velocity": velocity,
+        "density": density,
+        "force": force,
+        "torque": torque,
+        "blade_velocity": vb,
+        "blade_position": np.cumsum(vb, axis=0) * 0.02,
+        "point": {"scenario": scenario, "speed": speed, "depth": depth},
+    }
+
+
+def in_memory(speed: float, depth: float, **kw) -> StoreData:
+    a = synthetic(speed, depth, **kw)
+    return from_arrays(
+        a["velocity"],
+        a["density"],
+        a["blade_velocity"],
+        a["force"],
+        a["torque"],
+        time=a["time"],
+        point=a["point"],
+    )
+
+
+def write(path: Path, speed: float, depth: float, **kw) -> Path:
+    """A field store written with the fields layer's writer."""
+    a = synthetic(speed, depth, **kw)
+    grid = a["density"].shape[1:]
+    attrs = {
+        **a["point"],
+        "bins": list(grid),
+        "bin_size": [0.1, 0.1, 0.1],
+        "dt": 0.02,
+        "iterations": 10,
+        "sample_every": 1,
+        "particle_count": 100,
+        "seed": 0,
+        "dozerlab_version": "test",
+        "config": json.dumps({}),
+    }
+    coords = {k: (np.arange(n) + 0.5) * 0.1 for k, n in zip("xyz", grid, strict=False)}
+    series = {
+        k: a[k]
+        for k in (
+            "time",
+            "velocity",
+            "density",
+            "force",
+            "torque",
+            "blade_velocity",
+            "blade_position",
+        )
+    }
+    return write_store(path, **coords, **series, attrs=attrs, chunk_steps=32)
