@@ -95,13 +95,16 @@ def simulate(
     vtk_dir: str | Path | None = None,
     plots_dir: str | Path | None = None,
     log_every: int | None = None,
+    state_out: str | Path | None = None,
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
     ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
     the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
     name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
-    slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
+    slice and force plots of the store to ``plots_dir`` and to MLflow; the final particle state
+    to ``state_out`` (a bed file, ``Bed.load`` reads it) when given. The store's ``wall_time_s``
+    attribute is the stepping loop's wall time (s). Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
     from dozerlab import tracking
@@ -146,14 +149,14 @@ def simulate(
         tags={"scenario": scenario, "speed": speed, "depth": depth},
         params=params,
     ) as run:
-        stats = _drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every)
+        stats = _drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every, state_out)
         metrics = stats.metrics(bed.count)
         log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
         _plots_and_metrics(Path(out), plots_dir, metrics, run)
     return metrics
 
 
-def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ignore[no-untyped-def]
+def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every, state_out=None):  # type: ignore[no-untyped-def]
     """The stepping loop: move the blade, step, sample, append; returns the :class:`RunStats`."""
     from dozerlab.ndem import DivergenceError
     from dozerlab.scenarios.blade import BladeGeometry, add_blade
@@ -164,8 +167,6 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
     iterations = int(config["solver"]["iterations"])
     world, _handles = make_world(bed, config)
     blade = add_blade(world, traj.position[0], config)
-    # the blade only translates, so (centre − tip) is constant: torque about the tip as it was
-    # during the step = torque about the centre + (centre − tip) × force
     centre_minus_tip = BladeGeometry.from_config(config).tip_offset
     vtk = Path(vtk_dir) if vtk_dir is not None and vtk_every > 0 else None
     if vtk is not None:
@@ -197,17 +198,10 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
             window.append((dt_wall, st.contacts, st.residual, st.max_overlap))
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()
-                tip = traj.position[i + 1]
-                vel, rho = grid.sample(
-                    world.positions, world.velocities, world.radii, world.masses, tip
-                )
+                row = sample_row(world, blade, grid, traj, i + 1, centre_minus_tip)
                 stats.sample_time += wallclock.perf_counter() - t1
-                force = np.asarray(world.force_on(blade), dtype=np.float64)
-                stats.forces.append(force)
-                torque = world.torque_on(blade) + np.cross(centre_minus_tip, force)
-                writer.append(
-                    float(traj.time[i + 1]), vel, rho, force, torque, traj.velocity[i], tip
-                )
+                stats.forces.append(row[3])
+                writer.append(*row)
             if vtk is not None and (i + 1) % vtk_every == 0:
                 _write_vtk(vtk, i + 1, world)
             if (i + 1) % log_every == 0 or i + 1 == traj.steps:
@@ -223,8 +217,59 @@ def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every):  # type: ig
                     1e3 * w[:, 0].mean(),
                 )
                 window.clear()
-    stats.wall_time = wallclock.perf_counter() - start
+        stats.wall_time = wallclock.perf_counter() - start
+        writer.set_attrs(wall_time_s=stats.wall_time)
+    if state_out is not None:
+        moved_bed(
+            bed,
+            world.positions,
+            world.velocities,
+            world.angular_velocities,
+            {"time": float(traj.time[-1])},
+        ).save(state_out)
     return stats
+
+
+def sample_row(
+    world: Any, blade: int, grid: SamplingGrid, traj: Any, step: int, centre_minus_tip: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The store row after ``step`` solver steps of ``world``: the arguments of ``append``.
+
+    (time s, velocity (Nx,Ny,Nz,3), density (Nx,Ny,Nz), force (3,) N, torque (3,) N·m about the
+    tip, the blade velocity of the step that made the row, the tip position (3,) m).
+    """
+    tip = traj.position[step]
+    vel, rho = grid.sample(world.positions, world.velocities, world.radii, world.masses, tip)
+    force = np.asarray(world.force_on(blade), dtype=np.float64)
+    # the blade only translates, so (centre − tip) is constant: torque about the tip as it was
+    # during the step = torque about the centre + (centre − tip) × force
+    torque = world.torque_on(blade) + np.cross(centre_minus_tip, force)
+    return float(traj.time[step]), vel, rho, force, torque, traj.velocity[step - 1], tip
+
+
+def moved_bed(
+    bed: Any,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    angular_velocities: np.ndarray,
+    info: dict[str, Any],
+) -> Any:
+    """``bed`` with its grains at new ``positions`` (N, 3) m, in id order: a run's final state."""
+    from dozerlab.scenarios.bed import Bed
+
+    return Bed(
+        scenario=bed.scenario,
+        length=bed.length,
+        width=bed.width,
+        positions=positions,
+        radii=bed.radii,
+        masses=bed.masses,
+        velocities=velocities,
+        angular_velocities=angular_velocities,
+        material=bed.material,
+        seed=bed.seed,
+        info=info,
+    )
 
 
 def _plots_and_metrics(

@@ -247,6 +247,14 @@ class FieldStoreWriter:
         if self._fill == self.chunk_steps:
             self._flush()
 
+    def set_attrs(self, **attrs: Any) -> None:
+        """Add or replace store attributes (JSON values) before the store is closed."""
+        if self._stack is None:
+            raise RuntimeError("FieldStoreWriter.set_attrs called outside its `with` block")
+        values = json.loads(json.dumps(attrs, allow_nan=False))
+        self.attrs.update(values)
+        self._group.attrs.update(values)
+
     def _flush(self) -> None:
         k = self._fill
         if k == 0:
