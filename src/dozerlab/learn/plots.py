@@ -51,6 +51,7 @@ def loss_curves(
     ax.plot(epochs, train_loss, "o-" if len(epochs) < 3 else "-", label="training")
     ax.plot(epochs, val_loss, "o-" if len(epochs) < 3 else "-", label="validation (early stopping)")
     ax.set(xlabel="epoch", ylabel="MSE of normalised targets", yscale="log", title=title)
+    ax.xaxis.get_major_locator().set_params(integer=True)
     ax.legend()
     return _save(plt, fig, Path(path))
 

@@ -30,15 +30,6 @@ _MIME = {
 #: Resolution of the report's own figures: 1 inch of figure is 100 px of page, so a 12 in wide
 #: figure fills the page's width and a 12 pt label is 17 px high.
 FIGURE_DPI = 100
-_READABLE = {
-    "font.size": 12,
-    "axes.titlesize": 13,
-    "axes.labelsize": 12,
-    "xtick.labelsize": 11,
-    "ytick.labelsize": 11,
-    "legend.fontsize": 11,
-    "figure.titlesize": 14,
-}
 
 # Images are shown at their own pixel size (never enlarged) so the figures' text keeps the size
 # it was drawn with; the report's figures are drawn at 100 dpi for this page's 1200 px width.
@@ -92,7 +83,17 @@ def figure_style() -> AbstractContextManager[Any]:
     draw a section's figure inside it."""
     import matplotlib
 
-    return matplotlib.rc_context(_READABLE)
+    return matplotlib.rc_context(
+        {
+            "font.size": 12,
+            "axes.titlesize": 13,
+            "axes.labelsize": 12,
+            "xtick.labelsize": 11,
+            "ytick.labelsize": 11,
+            "legend.fontsize": 11,
+            "figure.titlesize": 14,
+        }
+    )
 
 
 def figure(source: bytes | str | Path | Any, caption: str, width: int | None = None) -> str:

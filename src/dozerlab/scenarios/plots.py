@@ -10,6 +10,10 @@ import numpy as np
 from dozerlab.runtime import atomic_output
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
@@ -74,7 +78,7 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     plt.close(fig)
 
 
-def bed_figure(bed: Bed):  # type: ignore[no-untyped-def]
+def bed_figure(bed: Bed) -> Figure:
     """A matplotlib figure of a bed: side view with every particle drawn to scale as a disc
     coloured by its y (thesis fig. 3.3–3.4), the bed's surface height seen from above, and the
     settle log (kinetic energy per particle and contacts over time)."""
@@ -91,8 +95,8 @@ def bed_figure(bed: Bed):  # type: ignore[no-untyped-def]
         max(1.2, width_in * 0.8 * top / bed.length),
         width_in * 0.8 * bed.width / bed.length,
     )
-    fig = Figure(figsize=(width_in, side_h + plan_h + 2.8), layout="constrained")
-    grid = fig.add_gridspec(3, 1, height_ratios=[side_h, plan_h, 1.6])
+    fig = Figure(figsize=(width_in, side_h + plan_h + 3.4), layout="constrained")
+    grid = fig.add_gridspec(3, 1, height_ratios=[side_h, plan_h, 2.2])
 
     ax = fig.add_subplot(grid[0])
     order = np.argsort(-pos[:, 1])  # the viewer is at y → −∞: the nearest particles last
@@ -128,7 +132,7 @@ def bed_figure(bed: Bed):  # type: ignore[no-untyped-def]
         h.T,
         origin="lower",
         extent=(0, bed.length, -bed.width / 2, bed.width / 2),
-        cmap="terrain",
+        cmap="YlOrBr",
         vmin=0.0,
         interpolation="nearest",
     )
@@ -138,7 +142,7 @@ def bed_figure(bed: Bed):  # type: ignore[no-untyped-def]
     ax = fig.add_subplot(grid[2])
     if bed.settle_time.size:
         ax.semilogy(bed.settle_time, np.maximum(bed.settle_kinetic_energy, 1e-12), color="C0")
-        ax.set_ylabel("kinetic energy per particle (J)", color="C0")
+        ax.set_ylabel("kinetic energy\nper particle (J)", color="C0")
         twin = ax.twinx()
         twin.plot(bed.settle_time, bed.settle_contacts, color="C1", lw=0.8)
         twin.set_ylabel("contacts", color="C1")
@@ -146,7 +150,7 @@ def bed_figure(bed: Bed):  # type: ignore[no-untyped-def]
     return fig
 
 
-def _colorbar(fig, ax, mappable, label: str) -> None:  # type: ignore[no-untyped-def]
+def _colorbar(fig: Figure, ax: Axes, mappable: ScalarMappable, label: str) -> None:
     # beside the axes' drawn box: an equal-aspect axes is narrower than its layout slot
     cax = ax.inset_axes((1.015, 0.0, 0.015, 1.0))
     fig.colorbar(mappable, cax=cax, label=label)

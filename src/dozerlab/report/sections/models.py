@@ -13,7 +13,7 @@ import numpy as np
 
 from dozerlab.report import html
 from dozerlab.report.sections import Context
-from dozerlab.sweep import validation_path
+from dozerlab.sweep import fmt_number, validation_path
 
 TITLE = "Models on held-out points"
 ORDER = 50
@@ -119,9 +119,11 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         facts.append(f"training took {train['seconds']:.0f} s")
     rows: list[list[Any]] = []
     for g, data in doc["groups"].items():
-        rows.append([html.Group(f"{g}: {len(data['points'])} points")])
-        rows.append(["all", g, *_cells(data["overall"])])
-        rows += [[p["name"], g, *_cells(p["metrics"])] for p in data["points"]]
+        n = len(data["points"])
+        rows.append([html.Group(f"{g}: {n} point{'s' if n != 1 else ''}")])
+        if n > 1:
+            rows.append(["all", g, *_cells(data["overall"])])
+        rows += [[_point(p), g, *_cells(p["metrics"])] for p in data["points"]]
     plots = doc.get("plots") or {}
     images = [
         (plots.get("loss"), f"{model}: training and validation loss"),
@@ -141,6 +143,14 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         + html.table(_columns("point"), rows)
         + "".join(figures)
     )
+
+
+def _point(entry: dict[str, Any]) -> str:
+    """A validated point as the report spells it: ``hill, 1.25 m/s, 0.06 m``."""
+    p = entry.get("point") or {}
+    if {"scenario", "speed", "depth"} <= p.keys():
+        return f"{p['scenario']}, {fmt_number(p['speed'])} m/s, {fmt_number(p['depth'])} m"
+    return str(entry["name"])
 
 
 def error_chart(results: dict[str, dict[str, Any]]) -> Any:
@@ -168,10 +178,18 @@ def error_chart(results: dict[str, dict[str, Any]]) -> Any:
                     bars, labels=[f"{v:.1f}" if np.isfinite(v) else "" for v in values], fontsize=10
                 )
             if comp.startswith("force"):
-                ax.axhline(100 * THESIS_ERROR, color="0.3", ls="--", lw=1)
+                ax.axhline(
+                    100 * THESIS_ERROR,
+                    color="0.3",
+                    ls="--",
+                    lw=1,
+                    label="thesis CNN ≈ 10 % (training data)" if comp == "force_x" else None,
+                )
             ax.set_xticks(x, models)
-            ax.set_title(f"{comp}")
+            ax.set_title(comp)
             ax.grid(axis="y", alpha=0.3)
+            ax.margins(y=0.12)
         axes[0].set_ylabel("relative RMSE (%)")
-        axes[0].legend(title="held-out group")
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), frameon=False)
     return fig

@@ -35,7 +35,7 @@ COLUMNS = [
     html.Column("depth", "m"),
     html.Column("particles"),
     html.Column("solver steps"),
-    html.Column("simulated", "s", lambda v: html.fmt(v if v is None else round(v, 2))),
+    html.Column("simulated", "s", lambda v: "–" if v is None else f"{v:.2f}"),
     html.Column("stepping wall time", "s", lambda v: "–" if v is None else f"{v:.1f}"),
     html.Column("wall ÷ simulated time", "", lambda v: "–" if v is None else f"{v:.0f} ×"),
     html.Column("mean |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
