@@ -162,7 +162,7 @@ def reduce_run(
             times.steps += 1
             times.add("output", t0)
         wall = wallclock.perf_counter() - start
-        writer.set_attrs(
+        writer.update_attrs(
             wall_time_s=wall,
             max_overlap=worst_overlap,
             phase_ms=json.dumps(times.per_step_ms()),
