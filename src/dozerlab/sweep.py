@@ -148,3 +148,18 @@ def model_path(results: str | Path, model: str) -> Path:
 def validation_path(results: str | Path, model: str) -> Path:
     """``results/validation/{model}.json``: held-out metrics of one model."""
     return Path(results) / "validation" / f"{model}.json"
+
+
+def dynamics_model_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}``: an evolution model's MLflow pyfunc directory."""
+    return Path(results) / "dynamics" / model
+
+
+def dynamics_validation_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}.json``: held-out one-step and rollout metrics of one evolution model."""
+    return Path(results) / "dynamics" / f"{model}.json"
+
+
+def dynamics_plots_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/plots/{model}``: the figures of that validation."""
+    return Path(results) / "dynamics" / "plots" / model

@@ -63,6 +63,23 @@ def validated_models():
     return config["learn"]["models"] if held_out else []
 
 
+DYNAMICS_MODELS = schema()["properties"]["dynamics"]["properties"]["models"]["items"]["enum"]
+
+
+def dynamics_config_json():
+    """What the evolution-model jobs read: their section, the seed, tracking, and the force
+    models' early-stopping blocks (shared, so the held-out split is one)."""
+    split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
+    doc = {"seed": config["seed"], "dynamics": config["dynamics"], "mlflow": config["mlflow"], "learn": split}
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def validated_dynamics():
+    """Evolution models validated on the held-out points (none without held-out points)."""
+    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
+    return config["dynamics"]["models"] if held_out else []
+
+
 def all_targets():
     """Every result of the configured sweep, spelled as a user would ask for it."""
     targets = [str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in POINTS})]
@@ -71,6 +88,8 @@ def all_targets():
         targets.append(str(P.field_path(RESULTS, p)))
     targets += [str(P.model_path(RESULTS, m)) for m in config["learn"]["models"]]
     targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
+    targets += [str(P.dynamics_model_path(RESULTS, m)) for m in config["dynamics"]["models"]]
+    targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets.append(f"{RESULTS}/report/index.html")
     return targets
 
