@@ -130,13 +130,20 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
 
 def test_report_has_table_figures_and_models(quick):
     text = (quick / "results" / "report" / "index.html").read_text()
+    sections = re.findall(r'<section id="([a-z]+)">', text)
+    assert {"sweep", "beds", "runs", "models"} <= set(sections)
+    assert '<div class="note">Smoke test.' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
-        assert f"{point.scenario} {point.name}: blade force and torque" in text
-    assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 1
+        assert f"{point.scenario} {point.name}: blade force (N) and torque" in text
+        # the sweep table's wall time is the simulation's own, recorded in its store
+        assert xr.open_zarr(P.field_path(quick / "results", point)).attrs["wall_time_s"] > 0
+    # sweep map, bed, per point trajectory, slice and force, error chart, per model parity
+    assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 3 + len(MODELS)
     for model in MODELS:
         assert f'id="validation-{model}"' in text
-    assert "not built yet" not in text and "no validation results" not in text
+    assert "Not built yet" not in text and "No results" not in text
+    assert not list((quick / "results" / "validation").glob("*.html"))  # report builds HTML
 
 
 def test_snakemake_report(quick):

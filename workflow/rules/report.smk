@@ -13,6 +13,6 @@ rule report:
         "logs/report.log",
     threads: 1
     params:
-        cfg=lambda wc: config_json("sweep", "learn", "dynamics"),
+        cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report"),
     shell:
         "python -m dozerlab report --config {params.cfg:q} --results results --out {output:q} > {log:q} 2>&1"

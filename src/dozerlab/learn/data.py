@@ -55,7 +55,7 @@ class StoreData:
     def name(self) -> str:
         p = self.point
         if {"scenario", "speed", "depth"} <= p.keys():
-            return f"{p['scenario']} v={p['speed']:g} d={p['depth']:g}"
+            return f"{p['scenario']} v = {p['speed']:g} m/s, d = {p['depth']:g} m"
         return Path(self.source).stem or "store"
 
 
