@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, help="JSON to write (results/dynamics/NAME.json)")
     p.add_argument(
-        "--plots", default=None, help="plot folder (default: the JSON path without .json)"
+        "--plots", default=None, help="plot folder (default: plots/NAME beside the JSON)"
     )
     p.add_argument(
         "--config", default=None, help="YAML file or inline JSON (dynamics, mlflow sections)"

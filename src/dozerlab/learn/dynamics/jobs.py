@@ -190,13 +190,14 @@ def validate_dynamics_job(
     config: dict[str, Any],
     plots_dir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default: a
-    folder named after ``out``), and an MLflow validate_dynamics run."""
+    """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default:
+    ``plots/{name}`` beside it, as :func:`dozerlab.sweep.dynamics_plots_path`; the folder named
+    after the JSON is the model's), and an MLflow validate_dynamics run."""
     import mlflow
 
     model, meta = pyfunc.load(model_dir)
     out = Path(out)
-    pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
+    pdir = Path(plots_dir) if plots_dir else out.parent / "plots" / out.stem
     held = {
         "interpolation": [load_store(p) for p in interpolation],
         "extrapolation": [load_store(p) for p in extrapolation],
