@@ -29,6 +29,7 @@ QUICK = REPO / "config" / "quick.yaml"
 CFG = load_config(QUICK)
 POINTS = P.sweep_points(CFG)
 MODELS = CFG["learn"]["models"]
+DYNAMICS = CFG["dynamics"]["models"]
 
 
 def snakemake_cmd(workdir: Path, *args: str, configfile: Path = QUICK) -> list[str]:
@@ -105,6 +106,33 @@ def test_models_reload_through_mlflow(quick):
         assert pred.shape == (3, 6) and np.isfinite(pred.to_numpy()).all()
 
 
+def test_evolution_models_predict_through_mlflow_and_are_validated(quick):
+    import json
+
+    import mlflow
+
+    ds = xr.open_zarr(P.field_path(quick / "results", POINTS[0]))
+    h, m = CFG["dynamics"]["history"], CFG["dynamics"]["horizon"]
+    inputs = {
+        "velocity": ds["velocity"].values[None, :h],
+        "density": ds["density"].values[None, :h],
+        "blade_velocity": ds["blade_velocity"].values[None, : h + m],
+    }
+    for model in DYNAMICS:
+        loaded = mlflow.pyfunc.load_model(str(P.dynamics_model_path(quick / "results", model)))
+        assert loaded.metadata.metadata["history"] == h
+        out = loaded.predict(inputs)
+        assert out["velocity"].shape == (1, m, *ds["density"].shape[1:], 3)
+        assert np.isfinite(out["density"]).all() and (out["density"] >= 0).all()
+        result = json.loads(P.dynamics_validation_path(quick / "results", model).read_text())
+        assert set(result["groups"]) == {"interpolation", "extrapolation"}
+        assert np.isfinite(result["overall"]["one_step"]["velocity"])
+        rollout = quick / "results" / "dynamics" / result["plots"]["rollout"]
+        assert rollout.is_file() and rollout.parent == P.dynamics_plots_path(
+            quick / "results", model
+        )
+
+
 def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     client, all_runs = runs(quick)
     parents = [r for r in all_runs if r.data.tags.get("rule") == "workflow"]
@@ -115,7 +143,14 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     rules = sorted(r.data.tags["rule"] for r in children)
-    expected = {"bed": 1, "simulate": len(POINTS), "train": len(MODELS), "validate": len(MODELS)}
+    expected = {
+        "bed": 1,
+        "simulate": len(POINTS),
+        "train": len(MODELS),
+        "validate": len(MODELS),
+        "train_dynamics": len(DYNAMICS),
+        "validate_dynamics": len(DYNAMICS),
+    }
     assert {rule: rules.count(rule) for rule in expected} == expected
     assert len(all_runs) == 1 + len(children)
     for child in children:
@@ -142,6 +177,8 @@ def test_report_has_table_figures_and_models(quick):
     assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 3 + len(MODELS)
     for model in MODELS:
         assert f'id="validation-{model}"' in text
+    for model in DYNAMICS:
+        assert f'id="dynamics-{model}"' in text
     assert "Not built yet" not in text and "No results" not in text
     assert not list((quick / "results" / "validation").glob("*.html"))  # report builds HTML
 

@@ -26,6 +26,7 @@ COMMAND_MODULES = (
     "dozerlab.scenarios.cli",
     "dozerlab.fields.cli",
     "dozerlab.learn.cli",
+    "dozerlab.learn.dynamics.cli",
     "dozerlab.reduce.cli",
 )
 

@@ -172,11 +172,6 @@ def reduced_comparison_path(results: str | Path, dynamics_model: str) -> Path:
     return Path(results) / "reduced" / f"{dynamics_model}.json"
 
 
-def dynamics_model_path(results: str | Path, model: str) -> Path:
-    """``results/dynamics/{model}``: a field-evolution model's MLflow pyfunc directory."""
-    return Path(results) / "dynamics" / model
-
-
 def model_path(results: str | Path, model: str) -> Path:
     """``results/models/{model}``: an MLflow pyfunc model directory."""
     return Path(results) / "models" / model
@@ -185,3 +180,18 @@ def model_path(results: str | Path, model: str) -> Path:
 def validation_path(results: str | Path, model: str) -> Path:
     """``results/validation/{model}.json``: held-out metrics of one model."""
     return Path(results) / "validation" / f"{model}.json"
+
+
+def dynamics_model_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}``: an evolution model's MLflow pyfunc directory."""
+    return Path(results) / "dynamics" / model
+
+
+def dynamics_validation_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}.json``: held-out one-step and rollout metrics of one evolution model."""
+    return Path(results) / "dynamics" / f"{model}.json"
+
+
+def dynamics_plots_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/plots/{model}``: the figures of that validation."""
+    return Path(results) / "dynamics" / "plots" / model

@@ -27,7 +27,7 @@ wildcard_constraints:
     speed=P.NUMBER_PATTERN,
     depth=P.NUMBER_PATTERN,
     model="[a-z]+",
-    dynamics_model="[a-z][a-z0-9_]*",
+    dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
 def config_json(*sections, scenario=None):
@@ -65,6 +65,23 @@ def validated_models():
     return config["learn"]["models"] if held_out else []
 
 
+DYNAMICS_MODELS = schema()["properties"]["dynamics"]["properties"]["models"]["items"]["enum"]
+
+
+def dynamics_config_json():
+    """What the evolution-model jobs read: their section, the seed, tracking, and the force
+    models' early-stopping blocks (shared, so the held-out split is one)."""
+    split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
+    doc = {"seed": config["seed"], "dynamics": config["dynamics"], "mlflow": config["mlflow"], "learn": split}
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def validated_dynamics():
+    """Evolution models validated on the held-out points (none without held-out points)."""
+    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
+    return config["dynamics"]["models"] if held_out else []
+
+
 def dynamics_input(wildcards):
     """The dynamics model directory a reduce job loads (none for replay: it reads the NDEM store)."""
     if wildcards.dynamics_model == "replay":
@@ -90,6 +107,8 @@ def all_targets():
         targets.append(str(P.field_path(RESULTS, p)))
     targets += [str(P.model_path(RESULTS, m)) for m in config["learn"]["models"]]
     targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
+    targets += [str(P.dynamics_model_path(RESULTS, m)) for m in config["dynamics"]["models"]]
+    targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
     targets += reduced_comparisons()
     targets.append(f"{RESULTS}/report/index.html")

@@ -7,12 +7,13 @@ rule report:
         trajectories=[str(P.trajectory_path(RESULTS, p, "png")) for p in POINTS],
         validation=[str(P.validation_path(RESULTS, m)) for m in validated_models()],
         reduced=reduced_comparisons(),
+        dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
     output:
         report("results/report/index.html", caption="../report/index.rst", category="Report"),
     log:
         "logs/report.log",
     threads: 1
     params:
-        cfg=lambda wc: config_json("sweep", "learn", "report", "reduced"),
+        cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report", "reduced"),
     shell:
         "python -m dozerlab report --config {params.cfg:q} --results results --out {output:q} > {log:q} 2>&1"

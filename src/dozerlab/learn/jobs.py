@@ -18,9 +18,11 @@ from dozerlab.learn.validate import evaluate, load_groups, strip_series, validat
 from dozerlab.runtime import atomic_output
 
 
-def _run(
+def job_run(
     config: dict[str, Any] | None, name: str, **kwargs: Any
 ) -> contextlib.AbstractContextManager[Any]:
+    """The job's MLflow run (:func:`dozerlab.tracking.tracked_run`), or none when the config's
+    ``mlflow.enabled`` is false."""
     cfg = (config or {}).get("mlflow", {})
     if not cfg.get("enabled", True):
         return contextlib.nullcontext(None)
@@ -53,7 +55,7 @@ def train_job(
         "learn": config["learn"],
         "train_stores": ",".join(str(p) for p in train),
     }
-    with _run(config, f"train {kind}", rule="train", tags={"model": kind}, params=params) as run:
+    with job_run(config, f"train {kind}", rule="train", tags={"model": kind}, params=params) as run:
         log_epoch = None
         if run is not None:
 
@@ -117,7 +119,7 @@ def validate_job(
         "interpolation": ",".join(map(str, interpolation)),
         "extrapolation": ",".join(map(str, extrapolation)),
     }
-    with _run(
+    with job_run(
         config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
