@@ -176,7 +176,7 @@ def test_with_the_replay_model_the_loop_follows_the_ndem_store(ndem_run):
 
 
 def test_reduce_command_writes_an_aligned_store_and_a_bed_file(ndem_run):
-    tmp, config = ndem_run
+    tmp, _ = ndem_run
     argv = [
         "reduce",
         "--bed",

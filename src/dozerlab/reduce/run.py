@@ -21,7 +21,13 @@ from tqdm import tqdm
 from dozerlab import __version__
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FieldStoreWriter
-from dozerlab.reduce.simulation import PhaseTimes, ReducedSettings, ReducedState, bodies_of
+from dozerlab.reduce.simulation import (
+    PhaseTimes,
+    ReducedSettings,
+    ReducedState,
+    bodies_of,
+    compile_kernels,
+)
 from dozerlab.runtime import DozerlabError
 
 log = logging.getLogger(__name__)
@@ -98,6 +104,7 @@ def reduce_run(
         "warmup_rows": warmup,
         "reduced": json.dumps(config["reduced"], sort_keys=True),
     }
+    compile_kernels(grid)
     times = PhaseTimes()
     worst_overlap = worst_depth = 0.0
     active = []

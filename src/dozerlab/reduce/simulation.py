@@ -265,6 +265,35 @@ class ReducedState:
         return stats
 
 
+def compile_kernels(grid: SamplingGrid) -> None:
+    """Run every numba kernel of a step once on two grains, so compilation (or loading the
+    compiled cache) falls in the job's time, not in the stepping loop's."""
+    from dozerlab.ndem.bodies import Bodies as NdemBodies
+
+    b = NdemBodies()
+    b.add_plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.5)
+    b.add_box((-1.0, 0.0, 1.0), (0.1, 0.5, 0.5), True, 0.5, None)
+    x = np.array([[0.1, 0.0, 0.05], [0.15, 0.0, 0.05]])
+    state = ReducedState(
+        x,
+        np.zeros_like(x),
+        np.full(2, 0.03),
+        np.ones(2),
+        Bodies(b.kind, b.center, b.rotations(), b.half, b.normal),
+        b.half[1],
+        np.zeros(3),
+        grid,
+        np.zeros(3),
+        ReducedSettings(),
+        np.zeros(3),
+        np.ones(3),
+    )
+    state.step(np.zeros((*grid.bins, 3)), np.zeros(grid.bins), np.zeros(3), 0.01)
+    for method in ("gauss_seidel", "jacobi"):
+        project(x.copy(), np.full(2, 0.03), np.ones(2), state.bodies, iterations=1, method=method)
+    grid.sample(x, np.zeros_like(x), np.full(2, 0.03), np.ones(2), np.zeros(3))
+
+
 def bodies_of(world: Any, blade: int) -> Bodies:
     """The world's planes and boxes with the blade box last, as projection reads them."""
     b = world.bodies
