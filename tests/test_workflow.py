@@ -6,6 +6,7 @@ what it left, then rerun it (nothing to do, nothing logged), kill a simulation h
 build it again, and feed it an invalid config.
 """
 
+import json
 import os
 import re
 import signal
@@ -30,6 +31,8 @@ CFG = load_config(QUICK)
 POINTS = P.sweep_points(CFG)
 MODELS = CFG["learn"]["models"]
 DYNAMICS = CFG["dynamics"]["models"]
+REDUCED = CFG["reduced"]["dynamics_models"]
+HELD_OUT = [p for p in POINTS if p.role != "train"]
 
 
 def snakemake_cmd(workdir: Path, *args: str, configfile: Path = QUICK) -> list[str]:
@@ -107,7 +110,6 @@ def test_models_reload_through_mlflow(quick):
 
 
 def test_evolution_models_predict_through_mlflow_and_are_validated(quick):
-    import json
 
     import mlflow
 
@@ -133,6 +135,34 @@ def test_evolution_models_predict_through_mlflow_and_are_validated(quick):
         )
 
 
+def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quick):
+    from dozerlab.fields.store import open_store
+    from dozerlab.scenarios.bed import Bed
+
+    results = quick / "results"
+    for point in POINTS:
+        assert Bed.load(P.state_path(results, point)).count > 0  # NDEM's final state
+    for model in REDUCED:
+        for point in HELD_OUT:
+            ds = open_store(P.reduced_path(results, model, point))
+            ndem = open_store(P.field_path(results, point))
+            assert dict(ds.sizes) == dict(ndem.sizes)
+            assert ds.attrs["dynamics_model"] == model and ds.attrs["force_model"] == "unet"
+            assert ds.attrs["wall_time_s"] > 0 and np.isfinite(ds["force"].values).all()
+            state = Bed.load(P.reduced_path(results, model, point, "npz"))
+            assert state.count == ndem.attrs["particle_count"]
+            assert P.reduce_benchmark_path(results, model, point).is_file()
+        summary = json.loads(P.reduced_comparison_path(results, model).read_text())
+        assert {(p["scenario"], p["speed"], p["depth"]) for p in summary["points"]} == {
+            (p.scenario, p.speed, p.depth) for p in HELD_OUT
+        }
+        for entry in summary["points"]:
+            assert entry["left_bed"] == 0 and entry["targets_met"]["nothing_through"]
+            assert np.isfinite(entry["height_accuracy"]) and entry["loop_speedup"] > 0
+            for plot in entry["plots"]:
+                assert (results / "reduced" / model / "compare" / plot).is_file()
+
+
 def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     client, all_runs = runs(quick)
     parents = [r for r in all_runs if r.data.tags.get("rule") == "workflow"]
@@ -150,6 +180,8 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
         "validate": len(MODELS),
         "train_dynamics": len(DYNAMICS),
         "validate_dynamics": len(DYNAMICS),
+        "reduce": len(REDUCED) * len(HELD_OUT),
+        "compare_reduced": len(REDUCED),
     }
     assert {rule: rules.count(rule) for rule in expected} == expected
     assert len(all_runs) == 1 + len(children)
@@ -166,7 +198,7 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
 def test_report_has_table_figures_and_models(quick):
     text = (quick / "results" / "report" / "index.html").read_text()
     sections = re.findall(r'<section id="([a-z]+)">', text)
-    assert {"sweep", "beds", "runs", "models"} <= set(sections)
+    assert {"sweep", "beds", "runs", "models", "reduced"} <= set(sections)
     assert '<div class="note">Smoke test.' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
