@@ -139,7 +139,7 @@ def animate_pair(
     with atomic_output(path) as tmp:
         gif = tmp.with_name(tmp.name + ".gif")  # Pillow picks the format from the extension
         try:
-            with writer.saving(fig, str(gif), dpi=70):
+            with writer.saving(fig, str(gif), dpi=60):  # ≈1 MB: the report embeds several
                 for s in steps:
                     show(int(s))
                     writer.grab_frame()
