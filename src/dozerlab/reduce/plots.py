@@ -99,7 +99,7 @@ def surface(ds: xr.Dataset, step: int, solid: float) -> np.ndarray:
 
 
 def animate_pair(
-    ndem: xr.Dataset, reduced: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 8
+    ndem: xr.Dataset, reduced: xr.Dataset, path: str | Path, *, frames: int = 40, fps: int = 6
 ) -> Path:
     """A GIF of NDEM (left) next to the reduced run (right), ``frames`` rows spread over the run."""
     from matplotlib.animation import PillowWriter
