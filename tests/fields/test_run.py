@@ -86,8 +86,14 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
         str(tmp / "vtk"),
         "--plots",
         str(tmp / "plots"),
+        "--state",
+        str(tmp / "final.npz"),
     ]
     assert main(argv) == 0
+    from dozerlab.scenarios.bed import Bed
+
+    final = Bed.load(tmp / "final.npz")  # the final state, in the bed format
+    assert final.count == bed.count and not np.allclose(final.positions, bed.positions)
     ds = open_store(out)
     assert ds.sizes["time"] == traj.steps // 2
     assert (ds.sizes["x"], ds.sizes["y"], ds.sizes["z"]) == (6, 5, 4)

@@ -108,16 +108,8 @@ def simulate(
     simulation diverges, leaving no store.
     """
     from dozerlab import tracking
-    from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.trajectory import Trajectory
 
-    bed = Bed.load(bed_path)
-    traj = Trajectory.load_csv(trajectory_path)
-    dt = float(config["solver"]["dt"])
-    if not np.isclose(traj.dt, dt, rtol=1e-6):
-        raise ValueError(
-            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
-        )
+    bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     scenario = scenario or bed.scenario
     speed = (
         speed
@@ -154,6 +146,24 @@ def simulate(
         log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
         _plots_and_metrics(Path(out), plots_dir, metrics, run)
     return metrics
+
+
+def load_inputs(
+    bed_path: str | Path, trajectory_path: str | Path, config: dict[str, Any]
+) -> tuple[Any, Any, float]:
+    """The bed, the trajectory and ``solver.dt`` (s) of a run; refuses a trajectory planned with
+    another time step."""
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.trajectory import Trajectory
+
+    bed = Bed.load(bed_path)
+    traj = Trajectory.load_csv(trajectory_path)
+    dt = float(config["solver"]["dt"])
+    if not np.isclose(traj.dt, dt, rtol=1e-6):
+        raise ValueError(
+            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
+        )
+    return bed, traj, dt
 
 
 def _drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every, state_out=None):  # type: ignore[no-untyped-def]

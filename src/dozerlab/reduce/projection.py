@@ -92,22 +92,16 @@ def _iterate(
             if g <= 0.0:
                 continue
             si, sj = g * inv_m[i] / wsum, g * inv_m[j] / wsum
-            if gauss_seidel:
-                x[i, 0] += si * n0
-                x[i, 1] += si * n1
-                x[i, 2] += si * n2
-                x[j, 0] -= sj * n0
-                x[j, 1] -= sj * n1
-                x[j, 2] -= sj * n2
-            else:
-                dx[i, 0] += si * n0
-                dx[i, 1] += si * n1
-                dx[i, 2] += si * n2
-                dx[j, 0] -= sj * n0
-                dx[j, 1] -= sj * n1
-                dx[j, 2] -= sj * n2
-                count[i] += 1.0
-                count[j] += 1.0
+            # Gauss-Seidel moves the spheres at once, Jacobi gathers the corrections
+            out = x if gauss_seidel else dx
+            out[i, 0] += si * n0
+            out[i, 1] += si * n1
+            out[i, 2] += si * n2
+            out[j, 0] -= sj * n0
+            out[j, 1] -= sj * n1
+            out[j, 2] -= sj * n2
+            count[i] += 1.0
+            count[j] += 1.0
         for k in range(bi.shape[0]):
             i, b = bi[k], bb[k]
             if inv_m[i] <= 0.0:
@@ -117,15 +111,11 @@ def _iterate(
             )
             if g <= 0.0:
                 continue
-            if gauss_seidel:
-                x[i, 0] += g * n0
-                x[i, 1] += g * n1
-                x[i, 2] += g * n2
-            else:
-                dx[i, 0] += g * n0
-                dx[i, 1] += g * n1
-                dx[i, 2] += g * n2
-                count[i] += 1.0
+            out = x if gauss_seidel else dx
+            out[i, 0] += g * n0
+            out[i, 1] += g * n1
+            out[i, 2] += g * n2
+            count[i] += 1.0
         if not gauss_seidel:
             for i in range(n):
                 if count[i] > 0.0:

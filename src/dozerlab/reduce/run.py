@@ -56,19 +56,11 @@ def reduce_run(
     final push-out (``max_body_depth_m``), the mean count of grains moved per step.
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
-    from dozerlab.fields.run import moved_bed, sample_row
-    from dozerlab.scenarios.bed import Bed
+    from dozerlab.fields.run import load_inputs, moved_bed, sample_row
     from dozerlab.scenarios.blade import BladeGeometry, add_blade
     from dozerlab.scenarios.build import make_world
-    from dozerlab.scenarios.trajectory import Trajectory
 
-    bed = Bed.load(bed_path)
-    traj = Trajectory.load_csv(trajectory_path)
-    dt = float(config["solver"]["dt"])
-    if not np.isclose(traj.dt, dt, rtol=1e-6):
-        raise ValueError(
-            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
-        )
+    bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     every = int(config["sampling"]["every"])
     grid = SamplingGrid.from_config(config)
     settings = ReducedSettings.from_config(config)
