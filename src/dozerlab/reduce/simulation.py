@@ -61,7 +61,7 @@ PHASES = (
 class ReducedSettings:
     """The ``reduced`` config section's loop settings (units in the schema)."""
 
-    iterations: int = 8
+    iterations: int = 24
     method: str = "gauss_seidel"
     relaxation: float = 1.0
     slop: float = 0.05
