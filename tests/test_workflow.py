@@ -64,7 +64,8 @@ def snakemake(workdir: Path, *args: str, configfile: Path = QUICK) -> subprocess
         env=clean_env(),
         capture_output=True,
         text=True,
-        timeout=900,
+        timeout=2400,  # a guard, not a timing: on a machine shared by many jobs the quick sweep (with
+        # the evolution models and the reduced runs) has taken over 15 min
     )
 
 
