@@ -14,6 +14,8 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/scenarios.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learn.smk"
+include: "workflow/rules/dynamics.smk"
+include: "workflow/rules/reduced.smk"
 include: "workflow/rules/report.smk"
 
 

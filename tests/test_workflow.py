@@ -6,6 +6,7 @@ what it left, then rerun it (nothing to do, nothing logged), kill a simulation h
 build it again, and feed it an invalid config.
 """
 
+import json
 import os
 import re
 import signal
@@ -29,6 +30,9 @@ QUICK = REPO / "config" / "quick.yaml"
 CFG = load_config(QUICK)
 POINTS = P.sweep_points(CFG)
 MODELS = CFG["learn"]["models"]
+DYNAMICS = CFG["dynamics"]["models"]
+REDUCED = CFG["reduced"]["dynamics_models"]
+HELD_OUT = [p for p in POINTS if p.role != "train"]
 
 
 def snakemake_cmd(workdir: Path, *args: str, configfile: Path = QUICK) -> list[str]:
@@ -60,7 +64,8 @@ def snakemake(workdir: Path, *args: str, configfile: Path = QUICK) -> subprocess
         env=clean_env(),
         capture_output=True,
         text=True,
-        timeout=900,
+        timeout=2400,  # a guard, not a timing: on a machine shared by many jobs the quick sweep (with
+        # the evolution models and the reduced runs) has taken over 15 min
     )
 
 
@@ -105,6 +110,60 @@ def test_models_reload_through_mlflow(quick):
         assert pred.shape == (3, 6) and np.isfinite(pred.to_numpy()).all()
 
 
+def test_evolution_models_predict_through_mlflow_and_are_validated(quick):
+
+    import mlflow
+
+    ds = xr.open_zarr(P.field_path(quick / "results", POINTS[0]))
+    h, m = CFG["dynamics"]["history"], CFG["dynamics"]["horizon"]
+    inputs = {
+        "velocity": ds["velocity"].values[None, :h],
+        "density": ds["density"].values[None, :h],
+        "blade_velocity": ds["blade_velocity"].values[None, : h + m],
+    }
+    for model in DYNAMICS:
+        loaded = mlflow.pyfunc.load_model(str(P.dynamics_model_path(quick / "results", model)))
+        assert loaded.metadata.metadata["history"] == h
+        out = loaded.predict(inputs)
+        assert out["velocity"].shape == (1, m, *ds["density"].shape[1:], 3)
+        assert np.isfinite(out["density"]).all() and (out["density"] >= 0).all()
+        result = json.loads(P.dynamics_validation_path(quick / "results", model).read_text())
+        assert set(result["groups"]) == {"interpolation", "extrapolation"}
+        assert np.isfinite(result["overall"]["one_step"]["velocity"])
+        rollout = quick / "results" / "dynamics" / result["plots"]["rollout"]
+        assert rollout.is_file() and rollout.parent == P.dynamics_plots_path(
+            quick / "results", model
+        )
+
+
+def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quick):
+    from dozerlab.fields.store import open_store
+    from dozerlab.scenarios.bed import Bed
+
+    results = quick / "results"
+    for point in POINTS:
+        assert Bed.load(P.state_path(results, point)).count > 0  # NDEM's final state
+    for model in REDUCED:
+        for point in HELD_OUT:
+            ds = open_store(P.reduced_path(results, model, point))
+            ndem = open_store(P.field_path(results, point))
+            assert dict(ds.sizes) == dict(ndem.sizes)
+            assert ds.attrs["dynamics_model"] == model and ds.attrs["force_model"] == "unet"
+            assert ds.attrs["wall_time_s"] > 0 and np.isfinite(ds["force"].values).all()
+            state = Bed.load(P.reduced_path(results, model, point, "npz"))
+            assert state.count == ndem.attrs["particle_count"]
+            assert P.reduce_benchmark_path(results, model, point).is_file()
+        summary = json.loads(P.reduced_comparison_path(results, model).read_text())
+        assert {(p["scenario"], p["speed"], p["depth"]) for p in summary["points"]} == {
+            (p.scenario, p.speed, p.depth) for p in HELD_OUT
+        }
+        for entry in summary["points"]:
+            assert entry["left_bed"] == 0 and entry["targets_met"]["nothing_through"]
+            assert np.isfinite(entry["height_accuracy"]) and entry["loop_speedup"] > 0
+            for plot in entry["plots"]:
+                assert (results / "reduced" / model / "compare" / plot).is_file()
+
+
 def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     client, all_runs = runs(quick)
     parents = [r for r in all_runs if r.data.tags.get("rule") == "workflow"]
@@ -115,7 +174,16 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     rules = sorted(r.data.tags["rule"] for r in children)
-    expected = {"bed": 1, "simulate": len(POINTS), "train": len(MODELS), "validate": len(MODELS)}
+    expected = {
+        "bed": 1,
+        "simulate": len(POINTS),
+        "train": len(MODELS),
+        "validate": len(MODELS),
+        "train_dynamics": len(DYNAMICS),
+        "validate_dynamics": len(DYNAMICS),
+        "reduce": len(REDUCED) * len(HELD_OUT),
+        "compare_reduced": len(REDUCED),
+    }
     assert {rule: rules.count(rule) for rule in expected} == expected
     assert len(all_runs) == 1 + len(children)
     for child in children:
@@ -130,13 +198,22 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
 
 def test_report_has_table_figures_and_models(quick):
     text = (quick / "results" / "report" / "index.html").read_text()
+    sections = re.findall(r'<section id="([a-z]+)">', text)
+    assert {"sweep", "beds", "runs", "models", "reduced"} <= set(sections)
+    assert '<div class="note">Smoke test.' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
-        assert f"{point.scenario} {point.name}: blade force and torque" in text
-    assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 1
+        assert f"{point.scenario} {point.name}: blade force (N) and torque" in text
+        # the sweep table's wall time is the simulation's own, recorded in its store
+        assert xr.open_zarr(P.field_path(quick / "results", point)).attrs["wall_time_s"] > 0
+    # sweep map, bed, per point trajectory, slice and force, error chart, per model parity
+    assert text.count("data:image/png;base64,") >= 3 * len(POINTS) + 3 + len(MODELS)
     for model in MODELS:
         assert f'id="validation-{model}"' in text
-    assert "not built yet" not in text and "no validation results" not in text
+    for model in DYNAMICS:
+        assert f'id="dynamics-{model}"' in text
+    assert "Not built yet" not in text and "No results" not in text
+    assert not list((quick / "results" / "validation").glob("*.html"))  # report builds HTML
 
 
 def test_snakemake_report(quick):

@@ -28,6 +28,8 @@ COMMAND_MODULES = (
     "dozerlab.scenarios.cli",
     "dozerlab.fields.cli",
     "dozerlab.learn.cli",
+    "dozerlab.learn.dynamics.cli",
+    "dozerlab.reduce.cli",
 )
 
 

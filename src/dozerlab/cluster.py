@@ -16,10 +16,28 @@ from dataclasses import dataclass
 from typing import Any
 
 #: The rules that run as cluster jobs; each has ``cluster.mem_mb`` / ``cluster.runtime`` fields.
-RULES = ("bed", "trajectory", "simulate", "train", "validate", "report", "plot_fields")
+RULES = (
+    "bed",
+    "trajectory",
+    "simulate",
+    "train",
+    "validate",
+    "train_dynamics",
+    "validate_dynamics",
+    "reduce",
+    "compare_reduced",
+    "report",
+    "plot_fields",
+)
 
-#: Where each rule's threads come from: the config's ``threads`` section, or 1.
-THREADED = ("bed", "simulate", "train")
+#: Where each rule's threads come from: a field of the config's ``threads`` section, or 1.
+THREADED = {
+    "bed": "bed",
+    "simulate": "simulate",
+    "train": "train",
+    "train_dynamics": "dynamics",
+    "reduce": "simulate",  # the NDEM run's threads: the speed-up compares the two at equal threads
+}
 
 
 class ClusterFitError(ValueError):
@@ -70,7 +88,7 @@ def job_resources(config: Mapping[str, Any], rule: str) -> dict[str, int | str]:
 
 def job_threads(config: Mapping[str, Any], rule: str) -> int:
     """Threads of a rule's jobs: the config's ``threads.<rule>``, or 1 for single-threaded rules."""
-    return int(config["threads"][rule]) if rule in THREADED else 1
+    return int(config["threads"][THREADED[rule]]) if rule in THREADED else 1
 
 
 def config_requests(config: Mapping[str, Any]) -> list[Request]:

@@ -140,6 +140,38 @@ def simulate_benchmark_path(results: str | Path, point: SweepPoint) -> Path:
     return Path(results) / "benchmarks" / "simulate" / point.scenario / f"{point.name}.tsv"
 
 
+def state_path(results: str | Path, point: SweepPoint) -> Path:
+    """``results/states/{scenario}/speed~{speed}_depth~{depth}.npz``: NDEM's final particle state."""
+    return Path(results) / "states" / point.scenario / f"{point.name}.npz"
+
+
+def reduced_path(
+    results: str | Path, dynamics_model: str, point: SweepPoint, ext: str = "zarr"
+) -> Path:
+    """``results/reduced/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.{ext}``.
+
+    ``zarr``: the reduced run's field store; ``npz``: its final particle state (a bed file).
+    """
+    return Path(results) / "reduced" / dynamics_model / point.scenario / f"{point.name}.{ext}"
+
+
+def reduce_benchmark_path(results: str | Path, dynamics_model: str, point: SweepPoint) -> Path:
+    """Snakemake's benchmark record (wall time, memory) of the point's reduce job."""
+    return (
+        Path(results)
+        / "benchmarks"
+        / "reduce"
+        / dynamics_model
+        / point.scenario
+        / f"{point.name}.tsv"
+    )
+
+
+def reduced_comparison_path(results: str | Path, dynamics_model: str) -> Path:
+    """``results/reduced/{dynamics_model}.json``: the reduced runs measured against NDEM."""
+    return Path(results) / "reduced" / f"{dynamics_model}.json"
+
+
 def model_path(results: str | Path, model: str) -> Path:
     """``results/models/{model}``: an MLflow pyfunc model directory."""
     return Path(results) / "models" / model
@@ -148,3 +180,18 @@ def model_path(results: str | Path, model: str) -> Path:
 def validation_path(results: str | Path, model: str) -> Path:
     """``results/validation/{model}.json``: held-out metrics of one model."""
     return Path(results) / "validation" / f"{model}.json"
+
+
+def dynamics_model_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}``: an evolution model's MLflow pyfunc directory."""
+    return Path(results) / "dynamics" / model
+
+
+def dynamics_validation_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/{model}.json``: held-out one-step and rollout metrics of one evolution model."""
+    return Path(results) / "dynamics" / f"{model}.json"
+
+
+def dynamics_plots_path(results: str | Path, model: str) -> Path:
+    """``results/dynamics/plots/{model}``: the figures of that validation."""
+    return Path(results) / "dynamics" / "plots" / model

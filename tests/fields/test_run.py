@@ -39,13 +39,20 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
         str(tmp / "vtk"),
         "--plots",
         str(tmp / "plots"),
+        "--state",
+        str(tmp / "final.npz"),
     ]
     assert main(argv) == 0
+    from dozerlab.scenarios.bed import Bed
+
+    final = Bed.load(tmp / "final.npz")  # the final state, in the bed format
+    assert final.count == bed.count and not np.allclose(final.positions, bed.positions)
     ds = open_store(out)
     assert ds.sizes["time"] == traj.steps // 2
     assert (ds.sizes["x"], ds.sizes["y"], ds.sizes["z"]) == (6, 5, 4)
     assert ds.attrs["scenario"] == "hill" and ds.attrs["speed"] == 0.5 and ds.attrs["depth"] == 0.06
     assert ds.attrs["particle_count"] == bed.count and ds.attrs["sample_every"] == 2
+    assert ds.attrs["wall_time_s"] > 0  # the stepping loop's wall time, s
     assert json.loads(ds.attrs["config"])["sampling"]["bins"] == [6, 5, 4]
     np.testing.assert_allclose(ds["time"].values, traj.time[2::2][: ds.sizes["time"]])
     np.testing.assert_allclose(

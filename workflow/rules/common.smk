@@ -15,6 +15,7 @@ from dozerlab import sweep as P
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))
 POINTS = P.sweep_points(config)
+HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
 RESULTS = "results"
 if not config["mlflow"]["enabled"]:
     os.environ["DOZERLAB_MLFLOW"] = "0"  # the jobs' tracked_run reads this
@@ -26,6 +27,7 @@ wildcard_constraints:
     speed=P.NUMBER_PATTERN,
     depth=P.NUMBER_PATTERN,
     model="[a-z]+",
+    dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
 def config_json(*sections, scenario=None):
@@ -63,6 +65,40 @@ def validated_models():
     return config["learn"]["models"] if held_out else []
 
 
+DYNAMICS_MODELS = schema()["properties"]["dynamics"]["properties"]["models"]["items"]["enum"]
+
+
+def dynamics_config_json():
+    """What the evolution-model jobs read: their section, the seed, tracking, and the force
+    models' early-stopping blocks (shared, so the held-out split is one)."""
+    split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
+    doc = {"seed": config["seed"], "dynamics": config["dynamics"], "mlflow": config["mlflow"], "learn": split}
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def validated_dynamics():
+    """Evolution models validated on the held-out points (none without held-out points)."""
+    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
+    return config["dynamics"]["models"] if held_out else []
+
+
+def dynamics_input(wildcards):
+    """The dynamics model directory a reduce job loads (none for replay: it reads the NDEM store)."""
+    if wildcards.dynamics_model == "replay":
+        return []
+    return str(P.dynamics_model_path(RESULTS, wildcards.dynamics_model))
+
+
+def reduced_of(dynamics_model):
+    """The reduced stores and final states of one dynamics model on the held-out points."""
+    return [str(P.reduced_path(RESULTS, dynamics_model, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]
+
+
+def reduced_comparisons():
+    """The comparison JSONs of the configured dynamics models (none without held-out points)."""
+    return [str(P.reduced_comparison_path(RESULTS, m)) for m in config["reduced"]["dynamics_models"]] if HELD_OUT else []
+
+
 def all_targets():
     """Every result of the configured sweep, spelled as a user would ask for it."""
     targets = [str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in POINTS})]
@@ -71,6 +107,10 @@ def all_targets():
         targets.append(str(P.field_path(RESULTS, p)))
     targets += [str(P.model_path(RESULTS, m)) for m in config["learn"]["models"]]
     targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
+    targets += [str(P.dynamics_model_path(RESULTS, m)) for m in config["dynamics"]["models"]]
+    targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
+    targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
+    targets += reduced_comparisons()
     targets.append(f"{RESULTS}/report/index.html")
     return targets
 

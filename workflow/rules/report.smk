@@ -6,6 +6,8 @@ rule report:
         fields=[str(P.field_path(RESULTS, p)) for p in POINTS],
         trajectories=[str(P.trajectory_path(RESULTS, p, "png")) for p in POINTS],
         validation=[str(P.validation_path(RESULTS, m)) for m in validated_models()],
+        reduced=reduced_comparisons(),
+        dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
     output:
         report("results/report/index.html", caption="../report/index.rst", category="Report"),
     log:
@@ -14,6 +16,6 @@ rule report:
     resources:
         **cluster.job_resources(config, "report"),
     params:
-        cfg=lambda wc: config_json("sweep", "learn"),
+        cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report", "reduced"),
     shell:
         "python -m dozerlab report --config {params.cfg:q} --results results --out {output:q} > {log:q} 2>&1"

@@ -9,7 +9,8 @@ rule simulate:
     output:
         # A directory: Snakemake removes it if the job fails; the command builds it in a
         # temporary sibling and renames it when complete, so a killed job leaves no store.
-        directory("results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr"),
+        store=directory("results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr"),
+        state="results/states/{scenario}/speed~{speed}_depth~{depth}.npz",
     benchmark:
         "results/benchmarks/simulate/{scenario}/speed~{speed}_depth~{depth}.tsv"
     log:
@@ -23,9 +24,9 @@ rule simulate:
         ),
     shell:
         # Temporaries of a killed earlier attempt (runtime.atomic_output's .NAME.tmp-PID) go first.
-        'rm -rf "$(dirname {output:q})"/."$(basename {output:q})".tmp-*; '
+        'rm -rf "$(dirname {output.store:q})"/."$(basename {output.store:q})".tmp-*; '
         "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
-        " --config {params.cfg:q} --out {output:q} --threads {threads} > {log:q} 2>&1"
+        " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads} > {log:q} 2>&1"
 
 
 # On request only (not part of `all`): field slices, the force plot and a GIF of one store.

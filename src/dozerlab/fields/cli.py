@@ -15,6 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
     )
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
+    p.add_argument(
+        "--state", default=None, help="write the final particle state here (.npz, a bed file)"
+    )
     p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
     p.add_argument(
         "--vtk-dir",
@@ -90,6 +93,7 @@ def _simulate(args: argparse.Namespace) -> int:
         depth=args.depth,
         vtk_dir=args.vtk_dir,
         plots_dir=args.plots,
+        state_out=args.state,
     )
     return 0
 

@@ -13,10 +13,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from dozerlab import __version__
-from dozerlab.fields.run import drive
+from dozerlab.fields.run import drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import open_store
 
@@ -41,26 +39,21 @@ def simulate(
     vtk_dir: str | Path | None = None,
     plots_dir: str | Path | None = None,
     log_every: int | None = None,
+    state_out: str | Path | None = None,
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
     ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
     the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
     name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
-    slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
+    slice and force plots of the store to ``plots_dir`` and to MLflow; the final particle state
+    to ``state_out`` (a bed file, ``Bed.load`` reads it) when given. The store's ``wall_time_s``
+    attribute is the stepping loop's wall time (s). Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
     from dozerlab import tracking
-    from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.trajectory import Trajectory
 
-    bed = Bed.load(bed_path)
-    traj = Trajectory.load_csv(trajectory_path)
-    dt = float(config["solver"]["dt"])
-    if not np.isclose(traj.dt, dt, rtol=1e-6):
-        raise ValueError(
-            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
-        )
+    bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     scenario = scenario or bed.scenario
     speed = (
         speed
@@ -93,7 +86,7 @@ def simulate(
         tags={"scenario": scenario, "speed": speed, "depth": depth},
         params=params,
     ) as run:
-        stats = drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every)
+        stats = drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every, state_out)
         metrics = stats.metrics(bed.count)
         log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
         _plots_and_metrics(Path(out), plots_dir, metrics, run)

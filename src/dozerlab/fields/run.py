@@ -87,10 +87,13 @@ def drive(
     out: Path,
     vtk_dir: str | Path | None = None,
     log_every: int | None = None,
+    state_out: str | Path | None = None,
 ) -> RunStats:
     """The stepping loop: move the blade, step, sample, append to the store ``out`` (with
     ``attrs``); VTK snapshots to ``vtk_dir`` every ``sampling.vtk_every`` steps; a log line every
-    ``log_every`` steps (default: 20 in the run). Returns the :class:`RunStats`.
+    ``log_every`` steps (default: 20 in the run); the final particle state to ``state_out`` (a bed
+    file, ``Bed.load`` reads it) when given. The store's ``wall_time_s`` attribute is the loop's
+    wall time (s). Returns the :class:`RunStats`.
 
     Raises :class:`DozerlabError` when the simulation diverges, leaving no store.
     """
@@ -102,8 +105,6 @@ def drive(
     every, vtk_every = int(s["every"]), int(s["vtk_every"])
     world, _handles = make_world(bed, config)
     blade = add_blade(world, traj.position[0], config)
-    # the blade only translates, so (centre − tip) is constant: torque about the tip as it was
-    # during the step = torque about the centre + (centre − tip) × force
     centre_minus_tip = BladeGeometry.from_config(config).tip_offset
     vtk = Path(vtk_dir) if vtk_dir is not None and vtk_every > 0 else None
     if vtk is not None:
@@ -135,17 +136,10 @@ def drive(
             window.append((dt_wall, st.contacts, st.residual, st.max_overlap))
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()
-                tip = traj.position[i + 1]
-                vel, rho = grid.sample(
-                    world.positions, world.velocities, world.radii, world.masses, tip
-                )
+                row = sample_row(world, blade, grid, traj, i + 1, centre_minus_tip)
                 stats.sample_time += wallclock.perf_counter() - t1
-                force = np.asarray(world.force_on(blade), dtype=np.float64)
-                stats.forces.append(force)
-                torque = world.torque_on(blade) + np.cross(centre_minus_tip, force)
-                writer.append(
-                    float(traj.time[i + 1]), vel, rho, force, torque, traj.velocity[i], tip
-                )
+                stats.forces.append(row[3])
+                writer.append(*row)
             if vtk is not None and (i + 1) % vtk_every == 0:
                 _write_vtk(vtk, i + 1, world)
             if (i + 1) % log_every == 0 or i + 1 == traj.steps:
@@ -161,5 +155,81 @@ def drive(
                     1e3 * w[:, 0].mean(),
                 )
                 window.clear()
-    stats.wall_time = wallclock.perf_counter() - start
+        # the stepping loop's own time (solver steps, sampling, store writes; not loading the
+        # bed or building the world): the figure a reduced run is compared against
+        stats.wall_time = wallclock.perf_counter() - start
+        writer.update_attrs(wall_time_s=stats.wall_time)
+    if state_out is not None:
+        moved_bed(
+            bed,
+            world.positions,
+            world.velocities,
+            world.angular_velocities,
+            {"time": float(traj.time[-1])},
+        ).save(state_out)
     return stats
+
+
+def load_inputs(
+    bed_path: str | Path, trajectory_path: str | Path, config: dict[str, Any]
+) -> tuple[Bed, Trajectory, float]:
+    """The bed, the trajectory and ``solver.dt`` (s) of a run; refuses a trajectory planned with
+    another time step."""
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.trajectory import Trajectory
+
+    bed = Bed.load(bed_path)
+    traj = Trajectory.load_csv(trajectory_path)
+    dt = float(config["solver"]["dt"])
+    if not np.isclose(traj.dt, dt, rtol=1e-6):
+        raise ValueError(
+            f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
+        )
+    return bed, traj, dt
+
+
+def sample_row(
+    world: Any,
+    blade: int,
+    grid: SamplingGrid,
+    traj: Trajectory,
+    step: int,
+    centre_minus_tip: np.ndarray,
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The store row after ``step`` solver steps of ``world``: the arguments of ``append``.
+
+    (time s, velocity (Nx,Ny,Nz,3), density (Nx,Ny,Nz), force (3,) N, torque (3,) N·m about the
+    tip, the blade velocity of the step that made the row, the tip position (3,) m).
+    """
+    tip = traj.position[step]
+    vel, rho = grid.sample(world.positions, world.velocities, world.radii, world.masses, tip)
+    force = np.asarray(world.force_on(blade), dtype=np.float64)
+    # the blade only translates, so (centre − tip) is constant: torque about the tip as it was
+    # during the step = torque about the centre + (centre − tip) × force
+    torque = world.torque_on(blade) + np.cross(centre_minus_tip, force)
+    return float(traj.time[step]), vel, rho, force, torque, traj.velocity[step - 1], tip
+
+
+def moved_bed(
+    bed: Bed,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    angular_velocities: np.ndarray,
+    info: dict[str, Any],
+) -> Bed:
+    """``bed`` with its grains at new ``positions`` (N, 3) m, in id order: a run's final state."""
+    from dozerlab.scenarios.bed import Bed
+
+    return Bed(
+        scenario=bed.scenario,
+        length=bed.length,
+        width=bed.width,
+        positions=positions,
+        radii=bed.radii,
+        masses=bed.masses,
+        velocities=velocities,
+        angular_velocities=angular_velocities,
+        material=bed.material,
+        seed=bed.seed,
+        info=info,
+    )

@@ -247,6 +247,18 @@ class FieldStoreWriter:
         if self._fill == self.chunk_steps:
             self._flush()
 
+    def update_attrs(self, **attrs: Any) -> None:
+        """Add or replace store attributes before the store is complete, such as figures known
+        only at the end of a run (``wall_time_s``); values must be JSON-serialisable."""
+        if self._stack is None:
+            raise RuntimeError("FieldStoreWriter.update_attrs called outside its `with` block")
+        try:
+            attrs = json.loads(json.dumps(attrs, allow_nan=False))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"store attrs must be JSON-serialisable without NaN: {exc}") from exc
+        self.attrs.update(attrs)
+        self._group.attrs.update(attrs)
+
     def _flush(self) -> None:
         k = self._fill
         if k == 0:

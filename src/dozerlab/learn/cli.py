@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out",
         required=True,
-        help="JSON to write (results/validation/NAME.json); the HTML fragment goes next to it",
+        help="JSON to write (results/validation/NAME.json)",
     )
     p.add_argument(
         "--plots", default=None, help="plot folder (default: the JSON path without .json)"

@@ -33,6 +33,8 @@ class StoreData:
 
     velocity (T, Nx, Ny, Nz, 3) m/s, density (T, Nx, Ny, Nz) kg/m³, blade_velocity (T, 3) m/s,
     target (T, 6) force N then torque N·m, time (T,) s; all float32 and C-contiguous.
+    ``row_dt`` (s) is the time between rows and ``bin_size`` (m) the bins' edge lengths, 0 where
+    unknown (the field-evolution models need them for the blade frame's shift per row).
     """
 
     velocity: np.ndarray
@@ -42,6 +44,8 @@ class StoreData:
     time: np.ndarray
     point: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    row_dt: float = 0.0
+    bin_size: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -52,7 +56,7 @@ class StoreData:
     def name(self) -> str:
         p = self.point
         if {"scenario", "speed", "depth"} <= p.keys():
-            return f"{p['scenario']} v={p['speed']:g} d={p['depth']:g}"
+            return f"{p['scenario']} v = {p['speed']:g} m/s, d = {p['depth']:g} m"
         return Path(self.source).stem or "store"
 
 
@@ -81,6 +85,8 @@ def from_arrays(
     time: np.ndarray | None = None,
     point: dict[str, Any] | None = None,
     source: str = "",
+    row_dt: float = 0.0,
+    bin_size: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> StoreData:
     """Build a :class:`StoreData` from arrays shaped like a field store's, checking shapes."""
     v, rho = _f32(velocity), _f32(density)
@@ -100,7 +106,17 @@ def from_arrays(
             f"{source or 'store'}: force/torque/blade_velocity must be ({steps}, 3)"
         )
     t = _f32(np.arange(steps) if time is None else time)
-    return StoreData(v, rho, vb, np.ascontiguousarray(target), t, dict(point or {}), source)
+    return StoreData(
+        v,
+        rho,
+        vb,
+        np.ascontiguousarray(target),
+        t,
+        dict(point or {}),
+        source,
+        float(row_dt),
+        tuple(float(b) for b in bin_size),  # type: ignore[arg-type]
+    )
 
 
 def load_store(path: str | Path) -> StoreData:
@@ -119,6 +135,8 @@ def load_store(path: str | Path) -> StoreData:
         time=ds["time"].values,
         point=point,
         source=str(path),
+        row_dt=float(ds.attrs.get("dt") or 0.0) * float(ds.attrs.get("sample_every") or 1),
+        bin_size=tuple(ds.attrs.get("bin_size") or (0.0, 0.0, 0.0)),
     )
 
 

@@ -13,7 +13,7 @@ from dozerlab.learn.data import load_store, point_key
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import TrainResult, train_model
-from dozerlab.learn.validate import evaluate, html_section, load_groups, strip_series, validate
+from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
 from dozerlab.runtime import atomic_output
 
 
@@ -97,7 +97,7 @@ def validate_job(
     config: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
-    named after ``out``), the HTML fragment next to the JSON, and an MLflow validate run."""
+    named after ``out``) and an MLflow validate run."""
     import mlflow
 
     model, meta = pyfunc.load(model_dir)
@@ -115,16 +115,12 @@ def validate_job(
         result = validate(model, meta, groups, pdir, out.parent)
         with atomic_output(out) as tmp:
             tmp.write_text(json.dumps(result, indent=1))
-        fragment = out.with_suffix(".html")
-        with atomic_output(fragment) as tmp:
-            tmp.write_text(html_section(out))
         if run is not None:
             metrics = flat(result["overall"], "overall")
             for g, data in result["groups"].items():
                 metrics.update(flat(data["overall"], g))
             mlflow.log_metrics(metrics)
             mlflow.log_artifact(str(out))
-            mlflow.log_artifact(str(fragment))
             mlflow.log_artifacts(str(pdir), artifact_path="plots")
     return result
 

@@ -155,6 +155,14 @@ class ThesisCNN(nn.Module):
         return self.head(torch.cat([h.flatten(1), c], dim=1))
 
 
+def pad_even(x: torch.Tensor) -> torch.Tensor:
+    """Pad (B, C, X, Y, Z) by one replicated bin at the end of each odd axis (for stride 2)."""
+    pad = []
+    for n in reversed(x.shape[2:]):
+        pad += [0, n % 2]
+    return F.pad(x, pad, mode="replicate") if any(pad) else x
+
+
 def _block(cin: int, cout: int, k: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(
         nn.Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0),
@@ -196,19 +204,12 @@ class ForceDensityUNet(nn.Module):
         self.d0 = nn.Sequential(_block(2 * width, width, 1), nn.Conv3d(width, OUTPUTS, 1))
         self.cond_head = nn.Linear(cond, OUTPUTS)
 
-    @staticmethod
-    def _pad_even(x: torch.Tensor) -> torch.Tensor:
-        pad = []
-        for n in reversed(x.shape[2:]):
-            pad += [0, n % 2]
-        return F.pad(x, pad, mode="replicate") if any(pad) else x
-
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         b = x.shape[0]
         cond = c[:, :, None, None, None].expand(-1, -1, *self.grid)
         h0 = self.e0(torch.cat([x, cond, self.coords.expand(b, -1, -1, -1, -1)], dim=1))
-        h1 = self.e1(self._pad_even(h0))
-        h2 = self.e2(self._pad_even(h1))
+        h1 = self.e1(pad_even(h0))
+        h2 = self.e2(pad_even(h1))
         u1 = F.interpolate(h2, size=h1.shape[2:], mode="trilinear", align_corners=False)
         u1 = self.d1(torch.cat([u1, h1], dim=1))
         u0 = F.interpolate(u1, size=self.grid, mode="trilinear", align_corners=False)

@@ -30,13 +30,29 @@ def _save(plt: Any, fig: Any, path: Path) -> Path:
 def loss_curves(
     train_loss: list[float], val_loss: list[float], path: str | Path, title: str = ""
 ) -> Path:
-    """Training and validation loss (normalised MSE) per epoch, log scale."""
+    """Training and validation loss (MSE of normalised targets) per epoch, log scale.
+
+    A model fitted in one closed-form solve (the ``linear`` ridge: one loss each, no epochs)
+    gets a bar chart of its two losses instead of a curve of one point.
+    """
     plt, fig, ax = _figure()
     ax = ax[0, 0]
+    if len(train_loss) == 1 and len(val_loss) == 1:
+        losses = [train_loss[0], val_loss[0]]
+        bars = ax.barh(["training", "validation blocks"], losses, color=["C0", "C1"])
+        ax.bar_label(bars, labels=[f"{v:.3g}" for v in losses], padding=3)
+        ax.set_xlim(0, 1.25 * max(max(losses), 1e-12))
+        ax.invert_yaxis()
+        ax.set(
+            xlabel="MSE of normalised targets",
+            title=f"{title}\nclosed-form fit: one solve, no epochs" if title else "closed-form fit",
+        )
+        return _save(plt, fig, Path(path))
     epochs = np.arange(len(train_loss))
     ax.plot(epochs, train_loss, "o-" if len(epochs) < 3 else "-", label="training")
     ax.plot(epochs, val_loss, "o-" if len(epochs) < 3 else "-", label="validation (early stopping)")
     ax.set(xlabel="epoch", ylabel="MSE of normalised targets", yscale="log", title=title)
+    ax.xaxis.get_major_locator().set_params(integer=True)
     ax.legend()
     return _save(plt, fig, Path(path))
 

@@ -16,9 +16,11 @@ and ``artifacts/meta.json`` (architecture, grid, training points, loss history).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import tempfile
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +93,18 @@ def predict_arrays(
 # No type hints on predict: MLflow would read them as a competing input schema (the signature
 # already states it). It warns about their absence when the class is defined, in every job and
 # script that loads a model, under a filter of its own, so the warning is caught, not filtered.
-with warnings.catch_warnings(record=True) as _caught:
+@contextlib.contextmanager
+def untyped_predict() -> Iterator[None]:
+    """Define a PythonModel with an untyped ``predict`` inside: MLflow's request for type hints
+    is dropped, every other warning passes."""
+    with warnings.catch_warnings(record=True) as caught:
+        yield
+    for w in caught:
+        if "Add type hints to the `predict` method" not in str(w.message):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+with untyped_predict():
 
     class ForcePyfunc(PythonModel):
         """MLflow pyfunc wrapper around a :class:`ForceModel`."""
@@ -103,11 +116,6 @@ with warnings.catch_warnings(record=True) as _caught:
         def predict(self, context, model_input, params=None):
             """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step input arrays."""
             return pd.DataFrame(predict_arrays(self.model, model_input), columns=list(TARGET_NAMES))
-
-
-for _w in _caught:
-    if "Add type hints to the `predict` method" not in str(_w.message):
-        warnings.warn_explicit(_w.message, _w.category, _w.filename, _w.lineno)
 
 
 def signature(grid: tuple[int, int, int]) -> Any:
@@ -128,7 +136,8 @@ def signature(grid: tuple[int, int, int]) -> Any:
     )
 
 
-def _requirements() -> list[str]:
+def pip_requirements() -> list[str]:
+    """Pinned requirements of a saved model (explicit: MLflow's inference of them is slow)."""
     from importlib.metadata import version
 
     return [f"{p}=={version(p)}" for p in ("mlflow", "torch", "numpy", "pandas", "dozerlab")]
@@ -149,7 +158,7 @@ def model_kwargs(
         "input_example": {
             k: np.ascontiguousarray(example[k][:1], dtype=np.float32) for k in INPUT_NAMES
         },
-        "pip_requirements": _requirements(),
+        "pip_requirements": pip_requirements(),
     }
 
 

@@ -15,14 +15,12 @@ import torch
 from tqdm import tqdm
 
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
+from dozerlab.learn.fitting import TrainingDiverged, device_for, guard, solve_ridge
 from dozerlab.learn.models import TARGET_PARITY, ForceModel, channel_parity
-from dozerlab.runtime import DozerlabError
+
+__all__ = ["TrainResult", "TrainingDiverged", "device_for", "train_model"]
 
 EpochCallback = Callable[[int, float, float], None]
-
-
-class TrainingDiverged(DozerlabError):
-    """The loss became NaN or infinite."""
 
 
 @dataclass
@@ -37,11 +35,6 @@ class TrainResult:
     seconds: float = 0.0
     data_seconds: float = 0.0
     model_uri: str = ""
-
-
-def device_for(name: str | None = None) -> torch.device:
-    """``name`` if given, else CUDA when present, else CPU."""
-    return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
 
 
 class Batches:
@@ -146,11 +139,7 @@ def mean_loss(model: ForceModel, data: Batches, chunk: int = 256) -> float:
 
 
 def _guard(value: float, what: str) -> None:
-    if not math.isfinite(value):
-        raise TrainingDiverged(
-            f"training diverged: {what} is {value}; check the stores for non-finite values "
-            "or lower learn.learning_rate"
-        )
+    guard(value, what, "lower learn.learning_rate")
 
 
 @torch.no_grad()
@@ -169,26 +158,12 @@ def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256)
         ys.append(((y - model.y_mean) / model.y_std).double())
     y_all = torch.cat(ys)
     for fc, part, odd in ((head.even, rows[0], False), (head.odd, rows[1], True)):
-        x, y = torch.cat(part), y_all[:, head.target_odd == odd]
-        n, d = x.shape
         # odd features and targets have zero mean by symmetry: no intercept, so that the odd
         # prediction changes sign exactly with the mirrored input
-        xm, ym = (torch.zeros_like(x[0]), torch.zeros_like(y[0])) if odd else (x.mean(0), y.mean(0))
-        xs = x.std(0).clamp_min(1e-12)
-        x = (x - xm) / xs
-        lam = alpha * n + 1e-9 * n
-        if d > n:
-            gram = x @ x.T
-            gram.diagonal().add_(lam)
-            w = x.T @ torch.linalg.solve(gram, y - ym)
-        else:
-            a = x.T @ x
-            a.diagonal().add_(lam)
-            w = torch.linalg.solve(a, x.T @ (y - ym))
-        w = w / xs[:, None]
+        w, b = solve_ridge(torch.cat(part), y_all[:, head.target_odd == odd], alpha, center=not odd)
         _guard(float(w.abs().max()), "the ridge solution")
         fc.weight.copy_(w.T.float())
-        fc.bias.copy_((ym - xm @ w).float())
+        fc.bias.copy_(b.float())
 
 
 def train_model(

@@ -1,10 +1,11 @@
-"""Held-out validation: metrics per sweep point, per group and overall, plots, and the HTML
-section of the platform's report."""
+"""Held-out validation: metrics per sweep point, per group and overall, and their plots.
+
+The result is a JSON document and PNG files; the platform's report (``dozerlab.report``) reads
+them and builds its HTML.
+"""
 
 from __future__ import annotations
 
-import html
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -118,6 +119,12 @@ def validate(
             for g, v in groups.items()
         },
         "summary": summary_line(model.kind, groups),
+        "training": {
+            "epochs": len(meta.get("train_loss", [])),
+            "best_epoch": meta.get("best_epoch"),
+            "samples": meta.get("samples"),
+            "seconds": meta.get("seconds"),
+        },
         "plots": {},
     }
     if plots_dir is not None:
@@ -154,45 +161,6 @@ def _make_plots(
             )
             out["series"][f"{g}: {p['name']}"] = rel(path)
     return out
-
-
-def html_section(validation_json: str | Path, html_dir: str | Path | None = None) -> str:
-    """An HTML ``<section>`` for the report from a validation JSON written by ``validate``.
-
-    Image links are relative to ``html_dir`` (the report's directory; default: the JSON's).
-    """
-    path = Path(validation_json)
-    result = json.loads(path.read_text())
-    link = lambda p: html.escape(os.path.relpath(path.parent / p, html_dir or path.parent))  # noqa: E731
-    esc = html.escape
-    rows = []
-    for g, data in result["groups"].items():
-        for label, m in [(f"<b>{esc(g)}: all</b>", data["overall"])] + [
-            (esc(p["name"]), p["metrics"]) for p in data["points"]
-        ]:
-            cells = "".join(
-                f"<td>{100 * m[c]['rel_rmse']:.1f} %</td><td>{m[c]['r2']:.3f}</td>"
-                for c in ("force_x", "force_z", "torque_y")
-            )
-            rows.append(f"<tr><td>{esc(g)}</td><td>{label}</td>{cells}</tr>")
-    head = "".join(
-        f"<th>{c} rel. RMSE</th><th>{c} R²</th>" for c in ("force_x", "force_z", "torque_y")
-    )
-    imgs = [
-        result["plots"].get("loss"),
-        result["plots"].get("parity"),
-        *result["plots"].get("series", {}).values(),
-    ]
-    figures = "".join(
-        f'<img src="{link(p)}" alt="{esc(Path(p).stem)}" style="max-width:48%">' for p in imgs if p
-    )
-    return (
-        f'<section class="validation" id="validation-{esc(result["model"])}">'
-        f"<h3>Model {esc(result['model'])} on held-out sweep points</h3>"
-        f"<p>{esc(result['summary'])}</p>"
-        f"<table><tr><th>group</th><th>point</th>{head}</tr>{''.join(rows)}</table>"
-        f"<div>{figures}</div></section>"
-    )
 
 
 def load_groups(

@@ -1,7 +1,7 @@
-"""The platform's HTML report (``results/report/index.html``) and the sweep's naming.
+"""The platform's HTML report (``results/report/index.html``).
 
-Submodules: ``points`` (sweep points and the workflow's result paths), ``html`` (a small
-self-contained HTML page builder), ``collect`` (per-point figures and numbers from the
-results), ``build`` (the report), ``cli`` (``dozerlab report``). Kept import-light: the CLI
-imports this package to list its commands.
+Submodules: ``html`` (the shared building blocks: embedded images, tables with units, notes,
+the page), ``sections`` (one module per section, each rendering its HTML from the results
+directory), ``collect`` (per-point numbers and figures), ``build`` (composes the page), ``cli``
+(``dozerlab report``). Kept import-light: the CLI imports this package to list its commands.
 """

@@ -1,14 +1,13 @@
 """The report's material for each sweep point: its numbers (sweep table row) and its figures.
 
 Figures are drawn by the layers that own them (``dozerlab.fields.plots`` for field slices and
-force series; the trajectory PNGs ``dozerlab trajectory`` wrote) and embedded here, never
-redrawn. A point whose outputs are missing gets a row that says so instead of failing the
-report, so the report of a partial run still shows what exists.
+force series; the trajectory PNGs ``dozerlab trajectory`` wrote) and embedded here. A point whose
+outputs are missing gets a row that says so instead of failing the report, so the report of a
+partial run still shows what exists.
 """
 
 from __future__ import annotations
 
-import csv
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,80 +15,52 @@ from pathlib import Path
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.sweep import (
-    SweepPoint,
-    field_path,
-    fmt_number,
-    simulate_benchmark_path,
-    trajectory_path,
-)
+from dozerlab.sweep import SweepPoint, field_path, trajectory_path
 
 
 @dataclass
 class PointSummary:
-    """The sweep-table row of one point; None where an output is missing.
+    """The numbers of one sweep point; None where an output is missing.
 
-    ``wall_time`` is the simulation job's wall-clock time in s (Snakemake's benchmark record);
-    ``mean_force`` / ``peak_force`` are the mean and largest blade force magnitude |F| in N.
+    ``steps`` counts solver steps, ``simulated`` is the simulated time in s, ``wall_time`` the
+    wall-clock time in s of the simulation's stepping loop (the store's ``wall_time_s``
+    attribute; None for stores written before it existed); ``mean_force`` / ``peak_force`` are
+    the mean and largest blade force magnitude |F| in N.
     """
 
     point: SweepPoint
+    built: bool = False
     particles: int | None = None
     steps: int | None = None
+    simulated: float | None = None
     wall_time: float | None = None
     mean_force: float | None = None
     peak_force: float | None = None
 
-    def row(self) -> list[object]:
-        p = self.point
-        return [
-            p.scenario,
-            p.role,
-            fmt_number(p.speed),
-            fmt_number(p.depth),
-            self.particles,
-            self.steps,
-            self.wall_time,
-            self.mean_force,
-            self.peak_force,
-        ]
-
-
-HEADERS = [
-    "scenario",
-    "role",
-    "speed (m/s)",
-    "depth (m)",
-    "particles",
-    "steps",
-    "wall time (s)",
-    "mean |F| (N)",
-    "peak |F| (N)",
-]
-
-
-def wall_time(results: str | Path, point: SweepPoint) -> float | None:
-    """The simulation job's wall time in s from Snakemake's benchmark TSV (None if absent)."""
-    path = simulate_benchmark_path(results, point)
-    if not path.is_file():
-        return None
-    with path.open(newline="") as f:
-        rows = list(csv.DictReader(f, delimiter="\t"))
-    return float(rows[-1]["s"]) if rows and rows[-1].get("s") else None
+    @property
+    def slowdown(self) -> float | None:
+        """Wall time per simulated time (1 = real time), None when either is unknown."""
+        if self.wall_time is None or not self.simulated:
+            return None
+        return self.wall_time / self.simulated
 
 
 def summarize(results: str | Path, point: SweepPoint) -> PointSummary:
-    """The sweep-table numbers of ``point`` from its field store and benchmark record."""
+    """The numbers of ``point`` from its field store."""
     from dozerlab.fields.store import open_store
 
-    summary = PointSummary(point, wall_time=wall_time(results, point))
+    summary = PointSummary(point)
     store = field_path(results, point)
     if not store.exists():
         return summary
     ds = open_store(store)
     force = np.linalg.norm(ds["force"].values, axis=1)
+    summary.built = True
     summary.particles = int(ds.attrs["particle_count"])
     summary.steps = int(ds.sizes["time"]) * int(ds.attrs.get("sample_every") or 1)
+    summary.simulated = float(ds["time"].values[-1]) if ds.sizes["time"] else 0.0
+    if ds.attrs.get("wall_time_s") is not None:
+        summary.wall_time = float(ds.attrs["wall_time_s"])
     if force.size:
         summary.mean_force, summary.peak_force = float(force.mean()), float(force.max())
     return summary
@@ -114,13 +85,16 @@ def point_figures(results: str | Path, point: SweepPoint) -> list[str]:
                 t = float(ds["time"].values[mid])
                 out.append(
                     html.figure(
-                        png, f"{point.scenario} {point.name}: density and velocity, t = {t:.2f} s"
+                        png,
+                        f"{point.scenario} {point.name}: density (kg/m³) and velocity relative to "
+                        f"the blade in the middle y-slice, t = {t:.2f} s",
                     )
                 )
             png = plot_force(ds, Path(tmp) / "force.png")
-            out.append(html.figure(png, f"{point.scenario} {point.name}: blade force and torque"))
-    if not out:
-        out.append(
-            f'<p class="missing">{html.esc(point.scenario)} {html.esc(point.name)}: not built yet</p>'
-        )
+            out.append(
+                html.figure(
+                    png,
+                    f"{point.scenario} {point.name}: blade force (N) and torque about the tip (N·m)",
+                )
+            )
     return out

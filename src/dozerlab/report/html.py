@@ -1,7 +1,9 @@
-"""A small builder of self-contained HTML pages: tables and figures embedded as base64 PNGs.
+"""The report's shared building blocks: embedded images, tables with units, notes, the page.
 
-The page opens from disk with no network and no neighbouring files, so it can be mailed,
-attached to an MLflow run or served as is.
+Every section builds its HTML from these, so the whole report looks alike and stays
+self-contained: images (PNG, GIF, SVG, JPEG files or matplotlib figures) are embedded as base64
+data URIs, and the page opens from disk with no network and no neighbouring files, so it can be
+mailed, attached to an MLflow run or served as is.
 """
 
 from __future__ import annotations
@@ -9,22 +11,45 @@ from __future__ import annotations
 import base64
 import html
 import io
-from collections.abc import Iterable, Sequence
+import math
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+_MIME = {
+    ".png": "image/png",
+    ".gif": "image/gif",
+    ".svg": "image/svg+xml",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+}
+
+#: Resolution of the report's own figures: 1 inch of figure is 100 px of page, so a 12 in wide
+#: figure fills the page's width and a 12 pt label is 17 px high.
+FIGURE_DPI = 100
+
+# Images are shown at their own pixel size (never enlarged) so the figures' text keeps the size
+# it was drawn with; the report's figures are drawn at 100 dpi for this page's 1200 px width.
 _STYLE = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
-h1, h2, h3 { font-weight: 600; }
-table { border-collapse: collapse; margin: 1em 0; font-size: 0.9em; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
-th { background: #f2f2f2; }
+body { font-family: system-ui, sans-serif; font-size: 16px; line-height: 1.45; margin: 1.5em auto;
+       max-width: 1240px; padding: 0 1em; color: #222; }
+h1 { font-size: 1.8em; margin-bottom: 0.2em; } h2 { font-size: 1.4em; margin-top: 1.8em;
+border-bottom: 1px solid #ddd; padding-bottom: 0.2em; } h3 { font-size: 1.15em; }
+nav { font-size: 0.95em; margin: 0.5em 0 1em; } nav a { margin-right: 1.2em; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.65em; text-align: right; }
+th { background: #f2f2f2; font-weight: 600; } tr.group td { background: #fafafa; font-weight: 600; }
 td.text, th.text { text-align: left; }
-figure { display: inline-block; margin: 0.5em; vertical-align: top; }
-figure img { max-width: 560px; border: 1px solid #ddd; }
-figcaption { font-size: 0.85em; color: #555; }
+figure { display: inline-block; margin: 0.6em 0.6em 0.6em 0; vertical-align: top; max-width: 100%; }
+figure img { max-width: 100%; height: auto; border: 1px solid #e2e2e2; }
+figcaption { font-size: 0.9em; color: #444; max-width: 60em; }
+.note { border-left: 4px solid #d08c00; background: #fff6e0; padding: 0.6em 1em; margin: 1em 0; }
 .missing { color: #a33; }
-details { margin: 0.5em 0 1em; }
+.caption { color: #444; font-size: 0.95em; max-width: 60em; }
+details { margin: 0.4em 0 0.8em; } summary { cursor: pointer; font-weight: 600; }
 """
 
 
@@ -33,63 +58,147 @@ def esc(value: Any) -> str:
     return html.escape(str(value))
 
 
-def png_data_uri(source: bytes | str | Path | Any) -> str:
-    """A ``data:image/png;base64,…`` URI of PNG bytes, a PNG file or a matplotlib figure.
-
-    A figure is rendered at 100 dpi and closed (the report builds many).
-    """
+def data_uri(source: bytes | str | Path | Any, mime: str = "image/png") -> str:
+    """A base64 ``data:`` URI of an image file (PNG, GIF, SVG, JPEG: type from the suffix), of
+    raw bytes of type ``mime``, or of a matplotlib figure (rendered as PNG at
+    :data:`FIGURE_DPI`)."""
     if isinstance(source, bytes):
         data = source
     elif isinstance(source, (str, Path)):
-        data = Path(source).read_bytes()
+        path = Path(source)
+        if path.suffix.lower() not in _MIME:
+            raise ValueError(f"cannot embed {path}: not one of {sorted(_MIME)}")
+        data, mime = path.read_bytes(), _MIME[path.suffix.lower()]
     else:
-        import matplotlib.pyplot as plt
-
         buf = io.BytesIO()
-        source.savefig(buf, format="png", dpi=100, bbox_inches="tight")
-        plt.close(source)
+        source.savefig(buf, format="png", dpi=FIGURE_DPI)
+        if (plt := sys.modules.get("matplotlib.pyplot")) is not None:
+            plt.close(source)  # a pyplot figure stays in pyplot's registry until closed
         data = buf.getvalue()
-    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+    return f"data:{mime};base64," + base64.b64encode(data).decode("ascii")
 
 
-def figure(source: bytes | str | Path | Any, caption: str) -> str:
-    """An embedded PNG with a caption (see :func:`png_data_uri` for ``source``)."""
+def figure_style() -> AbstractContextManager[Any]:
+    """A context in which matplotlib figures get the report's legible font sizes: create and
+    draw a section's figure inside it."""
+    import matplotlib
+
+    return matplotlib.rc_context(
+        {
+            "font.size": 12,
+            "axes.titlesize": 13,
+            "axes.labelsize": 12,
+            "xtick.labelsize": 11,
+            "ytick.labelsize": 11,
+            "legend.fontsize": 11,
+            "figure.titlesize": 14,
+        }
+    )
+
+
+def figure(source: bytes | str | Path | Any, caption: str, width: int | None = None) -> str:
+    """An embedded image with a caption (see :func:`data_uri` for ``source``); ``width`` in CSS
+    px caps the displayed width (default: the image's own width, at most the page's)."""
+    style = f' style="width:{int(width)}px"' if width else ""
     return (
-        f'<figure><img src="{png_data_uri(source)}" alt="{esc(caption)}">'
+        f'<figure><img src="{data_uri(source)}" alt="{esc(caption)}"{style}>'
         f"<figcaption>{esc(caption)}</figcaption></figure>"
     )
 
 
-def table(headers: Sequence[str], rows: Iterable[Sequence[Any]], text_columns: int = 1) -> str:
-    """A table; the first ``text_columns`` columns are left-aligned, numbers right-aligned.
-
-    Floats are shown with 4 significant digits; None as an en dash.
-    """
-
-    def cell(tag: str, i: int, value: Any) -> str:
-        cls = ' class="text"' if i < text_columns else ""
-        return f"<{tag}{cls}>{esc(fmt(value))}</{tag}>"
-
-    head = "".join(cell("th", i, h) for i, h in enumerate(headers))
-    body = "".join(
-        "<tr>" + "".join(cell("td", i, v) for i, v in enumerate(r)) + "</tr>" for r in rows
-    )
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+def percent(fraction: float | None, digits: int = 1) -> str:
+    """A fraction as a percentage, ``0.0912`` → ``9.1 %``; None or NaN as an en dash."""
+    if fraction is None or not math.isfinite(fraction):
+        return "–"
+    return f"{100 * fraction:.{digits}f} %"
 
 
 def fmt(value: Any) -> str:
-    """A table cell's text: floats to 4 significant digits, None as an en dash."""
-    if value is None:
+    """A table cell's default text: floats to 4 significant digits, None or NaN as an en dash."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
 
 
-def page(title: str, body: Sequence[str]) -> str:
-    """A complete HTML document."""
+@dataclass(frozen=True)
+class Column:
+    """A table column: its heading, its unit (shown in the heading; ``""`` for none, ``"%"`` for
+    percentages), how a value reads (default :func:`fmt`) and whether it is text (left-aligned)."""
+
+    name: str
+    unit: str = ""
+    format: Callable[[Any], str] = fmt
+    text: bool = False
+
+    @property
+    def heading(self) -> str:
+        return f"{self.name} ({self.unit})" if self.unit else self.name
+
+
+class Group(str):
+    """A table row heading (see :func:`table`)."""
+
+
+def table(columns: Sequence[Column], rows: Iterable[Sequence[Any]], caption: str = "") -> str:
+    """A table with the unit of each column in its heading. A row whose first cell is a
+    :class:`Group` is a heading row spanning the table."""
+
+    def cell(tag: str, col: Column, text: str) -> str:
+        cls = ' class="text"' if col.text else ""
+        return f"<{tag}{cls}>{esc(text)}</{tag}>"
+
+    head = "".join(cell("th", c, c.heading) for c in columns)
+    body = []
+    for r in rows:
+        if r and isinstance(r[0], Group):
+            body.append(
+                f'<tr class="group"><td class="text" colspan="{len(columns)}">{esc(r[0])}</td></tr>'
+            )
+        else:
+            body.append(
+                "<tr>"
+                + "".join(cell("td", c, c.format(v)) for c, v in zip(columns, r, strict=True))
+                + "</tr>"
+            )
+    cap = f'<caption class="caption">{esc(caption)}</caption>' if caption else ""
+    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def paragraph(text: str, cls: str = "") -> str:
+    """A paragraph of plain text (escaped); ``cls`` a CSS class such as ``caption``."""
+    attr = f' class="{cls}"' if cls else ""
+    return f"<p{attr}>{esc(text)}</p>"
+
+
+def note(text: str) -> str:
+    """A highlighted note (plain text, escaped), e.g. that a sweep is a smoke test."""
+    return f'<div class="note">{esc(text)}</div>'
+
+
+def missing(text: str) -> str:
+    """A line saying what is not there yet."""
+    return f'<p class="missing">{esc(text)}</p>'
+
+
+def details(summary: str, body: str, anchor: str = "") -> str:
+    """A collapsed block: ``summary`` (plain text) over ``body`` (HTML); ``anchor`` an id to
+    link to."""
+    attr = f' id="{esc(anchor)}"' if anchor else ""
+    return f"<details{attr}><summary>{esc(summary)}</summary>{body}</details>"
+
+
+def page(title: str, sections: Sequence[tuple[str, str, str]], intro: str = "") -> str:
+    """A complete HTML document: the title, ``intro`` (HTML), a table of contents and the
+    sections, each ``(id, heading, body HTML)``."""
+    nav = "".join(f'<a href="#{esc(i)}">{esc(h)}</a>' for i, h, _ in sections)
+    body = "\n".join(
+        f'<section id="{esc(i)}"><h2>{esc(h)}</h2>\n{b}\n</section>' for i, h, b in sections
+    )
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">'
         f"<title>{esc(title)}</title><style>{_STYLE}</style></head>\n<body>\n"
-        f"<h1>{esc(title)}</h1>\n" + "\n".join(body) + "\n</body></html>\n"
+        f"<h1>{esc(title)}</h1>\n{intro}\n<nav>{nav}</nav>\n{body}\n</body></html>\n"
     )

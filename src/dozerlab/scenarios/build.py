@@ -67,7 +67,8 @@ def target_profile(scenario: str, config: dict[str, Any], x: np.ndarray) -> np.n
     return np.where(x < s["edge"] * length, float(s["high_height"]), float(s["low_height"]))
 
 
-def _add_walls(world: World, length: float, width: float, friction: float) -> dict[str, int]:
+def add_walls(world: World, length: float, width: float, friction: float) -> dict[str, int]:
+    """The ground and the four walls of a bed of ``length`` × ``width`` (m); body ids by name."""
     planes = {
         "ground": ((0.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
         "wall_start": ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0)),
@@ -88,7 +89,7 @@ def make_world(bed: Bed, config: dict[str, Any]) -> tuple[World, dict[str, int]]
     ``wall_start``, ``wall_end``, ``wall_left``, ``wall_right``.
     """
     world = World.from_config(config)
-    ids = _add_walls(world, bed.length, bed.width, float(config["material"]["wall_friction"]))
+    ids = add_walls(world, bed.length, bed.width, float(config["material"]["wall_friction"]))
     _add_particles(world, bed.positions, bed.radii, config, bed.velocities, bed.angular_velocities)
     return world, ids
 
@@ -264,7 +265,7 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         poisson_ratio=mat["poisson_ratio"],
         max_overlap=solver["max_overlap"],
     )
-    _add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
+    add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
     # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
     emission_steps = int(
         np.ceil((emitter.n_rows + 2.0 * emitter.estimate / emitter.columns) * emitter.period / dt)

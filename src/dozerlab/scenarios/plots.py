@@ -10,6 +10,10 @@ import numpy as np
 from dozerlab.runtime import atomic_output
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
@@ -74,43 +78,84 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     plt.close(fig)
 
 
-def plot_bed(bed: Bed, path: str | Path) -> None:
-    """Write a PNG of a bed: side view of the particles (thesis fig. 3.3–3.4), top view coloured by
-    height, and the settle log (kinetic energy per particle and contacts over time)."""
-    plt = _pyplot()
-    fig = plt.figure(figsize=(10, 9))
-    grid = fig.add_gridspec(3, 1, height_ratios=[1.2, 1.0, 0.8])
-    order = np.argsort(bed.positions[:, 1])
-    pos = bed.positions[order]
+def bed_figure(bed: Bed) -> Figure:
+    """A matplotlib figure of a bed: side view with every particle drawn to scale as a disc
+    coloured by its y (thesis fig. 3.3–3.4), the bed's surface height seen from above, and the
+    settle log (kinetic energy per particle and contacts over time)."""
+    from matplotlib.collections import EllipseCollection
+    from matplotlib.figure import Figure
+
+    from dozerlab.scenarios.heightfield import height_field
+
+    pos, diameter = bed.positions, 2.0 * bed.radii
+    top = float((pos[:, 2] + bed.radii).max()) if bed.count else 1.0
+    width_in = 12.0
+    # axes heights follow the bed's aspect so that both views keep x, y and z to scale
+    side_h, plan_h = (
+        max(1.2, width_in * 0.8 * top / bed.length),
+        width_in * 0.8 * bed.width / bed.length,
+    )
+    fig = Figure(figsize=(width_in, side_h + plan_h + 3.4), layout="constrained")
+    grid = fig.add_gridspec(3, 1, height_ratios=[side_h, plan_h, 2.2])
+
     ax = fig.add_subplot(grid[0])
-    ax.scatter(pos[:, 0], pos[:, 2], s=4, c=pos[:, 1], cmap="viridis")
-    ax.set_aspect("equal")
-    ax.set_xlim(0, bed.length)
-    ax.set_ylim(bottom=0)
-    ax.set_ylabel("z [m]")
-    ax.set_title(f"{bed.scenario} bed: {bed.count} particles (side view, colour = y)")
+    order = np.argsort(-pos[:, 1])  # the viewer is at y → −∞: the nearest particles last
+    discs = EllipseCollection(
+        diameter[order],
+        diameter[order],
+        np.zeros(bed.count),
+        units="xy",
+        offsets=pos[order][:, [0, 2]],
+        offset_transform=ax.transData,
+        array=pos[order, 1],
+        cmap="viridis",
+        edgecolors="0.15",
+        linewidths=0.15,
+    )
+    discs.set_clim(-bed.width / 2, bed.width / 2)
+    ax.add_collection(discs)
+    _colorbar(fig, ax, discs, "y (m)")
+    ax.set(xlim=(0, bed.length), ylim=(0, top * 1.05), aspect="equal", ylabel="z (m)")
+    ax.set_title(
+        f"{bed.scenario} bed: {bed.count} particles, radius {bed.radii.mean():.3g} m "
+        "(side view, drawn to scale)"
+    )
 
     ax = fig.add_subplot(grid[1])
-    top = np.argsort(bed.positions[:, 2])
-    sc = ax.scatter(
-        bed.positions[top, 0], bed.positions[top, 1], s=4, c=bed.positions[top, 2], cmap="terrain"
+    r = float(bed.radii.mean()) if bed.count else 0.05
+    cells = (
+        max(1, round(bed.length / (2 * r))),
+        max(1, round(bed.width / (2 * r))),
+    )  # a grain each
+    _, h = height_field(pos, bed.radii, bed.length, bed.width, cells)
+    im = ax.imshow(
+        h.T,
+        origin="lower",
+        extent=(0, bed.length, -bed.width / 2, bed.width / 2),
+        cmap="YlOrBr",
+        vmin=0.0,
+        interpolation="nearest",
     )
-    fig.colorbar(sc, ax=ax, label="z [m]")
-    ax.set_aspect("equal")
-    ax.set_xlim(0, bed.length)
-    ax.set_ylim(-bed.width / 2, bed.width / 2)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+    _colorbar(fig, ax, im, "surface height (m)")
+    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title="surface height, top view")
 
     ax = fig.add_subplot(grid[2])
     if bed.settle_time.size:
         ax.semilogy(bed.settle_time, np.maximum(bed.settle_kinetic_energy, 1e-12), color="C0")
-        ax.set_ylabel("KE per particle [J]", color="C0")
+        ax.set_ylabel("kinetic energy\nper particle (J)", color="C0")
         twin = ax.twinx()
         twin.plot(bed.settle_time, bed.settle_contacts, color="C1", lw=0.8)
         twin.set_ylabel("contacts", color="C1")
-    ax.set_xlabel("time [s]")
-    ax.set_title("build and settle log")
-    fig.tight_layout()
-    _save(fig, path)
-    plt.close(fig)
+    ax.set(xlabel="time (s)", title="build and settle log")
+    return fig
+
+
+def _colorbar(fig: Figure, ax: Axes, mappable: ScalarMappable, label: str) -> None:
+    # beside the axes' drawn box: an equal-aspect axes is narrower than its layout slot
+    cax = ax.inset_axes((1.015, 0.0, 0.015, 1.0))
+    fig.colorbar(mappable, cax=cax, label=label)
+
+
+def plot_bed(bed: Bed, path: str | Path) -> None:
+    """Write :func:`bed_figure` of a bed as a PNG."""
+    _save(bed_figure(bed), path)

@@ -1,0 +1,92 @@
+"""The reduced loop against NDEM on one sweep point, side by side: same bed, trajectory, threads
+and machine, in one process run.
+
+    python benchmarks/reduce_loop.py --results results --scenario hill --speed 0.875 \\
+        --depth 0.045 [--config config/config.yaml] [--threads 1] [--dynamics replay ridge]
+
+Runs NDEM (``fields.run.simulate``) on the point's bed and trajectory under ``--results``, then
+the reduced loop with each dynamics model (``replay``: the new NDEM run's own fields;
+otherwise ``results/dynamics/{model}``) and the config's force model, into a temporary folder,
+and prints for each: the stepping loop's wall time and its speed-up over NDEM's (per simulated
+second: the same trajectory), the mean time per reduced step of each phase (selection,
+advection, projection, sampling, field and force inference, store writes) and of the NDEM
+warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from dozerlab import sweep as P
+from dozerlab.config import load_config
+from dozerlab.runtime import set_threads
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", default="results")
+    ap.add_argument("--config", default="config/config.yaml")
+    ap.add_argument("--scenario", required=True)
+    ap.add_argument("--speed", type=float, required=True)
+    ap.add_argument("--depth", type=float, required=True)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--dynamics", nargs="+", default=["replay"])
+    args = ap.parse_args()
+    os.environ["DOZERLAB_MLFLOW"] = "0"
+    set_threads(args.threads)
+    from dozerlab.fields.run import simulate
+    from dozerlab.reduce.compare import compare_point
+    from dozerlab.reduce.models import ForcePredictor, load_field_model
+    from dozerlab.reduce.run import reduce_run
+
+    cfg = load_config(args.config)
+    point = P.SweepPoint(args.scenario, args.speed, args.depth)
+    res = Path(args.results)
+    bed, traj = P.bed_path(res, point.scenario), P.trajectory_path(res, point)
+    force = ForcePredictor(P.model_path(res, cfg["reduced"]["force_model"]))
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Path(tmp)
+        t0 = time.perf_counter()
+        m = simulate(bed, traj, cfg, t / "ndem.zarr", state_out=t / "ndem.npz")
+        print(f"{point.scenario} {point.name}, {args.threads} thread(s)")
+        print(f"NDEM: loop {m['wall_time_s']:.2f} s, job {time.perf_counter() - t0:.2f} s")
+        for name in args.dynamics:
+            source = name if name == "replay" else P.dynamics_model_path(res, name)
+            fm = load_field_model(source, tuple(cfg["sampling"]["bins"]), t / "ndem.zarr")
+            t0 = time.perf_counter()
+            r = reduce_run(
+                bed,
+                traj,
+                cfg,
+                fm,
+                force,
+                t / f"{name}.zarr",
+                t / f"{name}.npz",
+                scenario=point.scenario,
+                speed=point.speed,
+                depth=point.depth,
+            )
+            job = time.perf_counter() - t0
+            c, _ = compare_point(
+                t / "ndem.zarr", t / f"{name}.zarr", bed, t / "ndem.npz", t / f"{name}.npz", cfg
+            )
+            phases = ", ".join(f"{k[3:]} {v:.2f}" for k, v in r.items() if k.startswith("ms_"))
+            print(
+                f"{name}: loop {r['wall_time_s']:.2f} s ({m['wall_time_s'] / r['wall_time_s']:.1f}x"
+                f" NDEM's), job {job:.2f} s (models loaded before); NDEM warm-up "
+                f"{r['warmup_s']:.2f} s; ms per step: {phases}; grains moved per step "
+                f"{r['active_grains_mean']:.0f}; largest overlap {r['max_overlap']:.3f} r"
+            )
+            print(
+                f"    height accuracy {c['height_accuracy']:.3f}, force x rel. RMSE "
+                f"{c['force_x_rel_rmse']:.3f}, velocity rel. L2 {c['velocity_rel_l2']:.3f}, "
+                f"density rel. L2 {c['density_rel_l2']:.3f}, EMD {1e3 * c['final_emd_m']:.1f} mm"
+            )
+
+
+if __name__ == "__main__":
+    main()

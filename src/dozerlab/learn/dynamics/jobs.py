@@ -1,0 +1,245 @@
+"""The train-dynamics / validate-dynamics jobs: field stores in, a model directory or metrics
+JSON and plots out, each an MLflow run (the force models' pattern, :mod:`dozerlab.learn.jobs`)."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from dozerlab.learn.data import StoreData, check_grid, load_store, point_key
+from dozerlab.learn.dynamics import plots, pyfunc
+from dozerlab.learn.dynamics.metrics import combine, evaluate_store, public
+from dozerlab.learn.dynamics.models import DynamicsModel
+from dozerlab.learn.dynamics.train import DynamicsTrainResult, train_dynamics
+from dozerlab.learn.dynamics.windows import frame_of
+from dozerlab.learn.plots import loss_curves
+from dozerlab.learn.validate import GROUPS, check_no_leak
+from dozerlab.runtime import atomic_output
+from dozerlab.tracking import job_run
+
+
+def _arrays(store: StoreData) -> dict[str, Any]:
+    return {
+        "velocity": store.velocity,
+        "density": store.density,
+        "blade_velocity": store.blade_velocity,
+    }
+
+
+def train_dynamics_job(
+    kind: str,
+    train: list[str | Path],
+    config: dict[str, Any],
+    out: str | Path,
+    device: str | None = None,
+    progress: bool = True,
+) -> DynamicsTrainResult:
+    """Train evolution model ``kind`` on the stores ``train``; save the MLflow model directory
+    at ``out`` and log the run (params, per-epoch losses, timing, loss plot, model)."""
+    import mlflow
+
+    stores = [load_store(p) for p in train]
+    dyn = config["dynamics"]
+    split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
+    meta = {
+        "train_points": [s.point for s in stores],
+        "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
+        "train_sources": [str(Path(p).resolve()) for p in train],
+        "dynamics": dyn,
+        "split": split,
+        "seed": config.get("seed"),
+    }
+    params = {"model": kind, "seed": config.get("seed"), "dynamics": dyn, "learn": split}
+    params["train_stores"] = ",".join(str(p) for p in train)
+    tags = {"model": kind}
+    with job_run(
+        config, f"train dynamics {kind}", rule="train_dynamics", tags=tags, params=params
+    ) as run:
+        log_epoch = None
+        if run is not None:
+
+            def log_epoch(epoch: int, tr: float, va: float) -> None:
+                mlflow.log_metrics({"train_loss": tr, "val_rollout_loss": va}, step=epoch)
+
+        result = train_dynamics(
+            kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
+        )
+        meta.update(
+            train_loss=result.train_loss,
+            val_loss=result.val_loss,
+            best_epoch=result.best_epoch,
+            samples=result.samples,
+            seconds=result.seconds,
+        )
+        model = result.model.cpu()
+        with atomic_output(out) as tmp:
+            pyfunc.save(model, meta, tmp, _arrays(stores[0]))
+        if run is not None:
+            mlflow.log_metrics(
+                {
+                    "best_val_rollout_loss": min(result.val_loss),
+                    "best_epoch": result.best_epoch,
+                    "train_seconds": result.seconds,
+                }
+            )
+            with tempfile.TemporaryDirectory() as d:
+                png = loss_curves(
+                    result.train_loss, result.val_loss, Path(d) / "loss.png", f"dynamics {kind}"
+                )
+                mlflow.log_artifact(str(png))
+            result.model_uri = pyfunc.log(model, meta, _arrays(stores[0])).model_uri
+    return result
+
+
+def validate_dynamics(
+    model: DynamicsModel,
+    meta: dict[str, Any],
+    held_out: dict[str, list[StoreData]],
+    steps: int,
+    starts: int,
+    plots_dir: str | Path | None = None,
+    json_dir: str | Path | None = None,
+) -> dict[str, Any]:
+    """Metrics of ``model`` on held-out stores grouped by ``GROUPS`` (``steps``-row rollouts
+    from ``starts`` true states each), per point, per group and overall, with plots into
+    ``plots_dir`` (paths relative to ``json_dir``). Refuses training points, other grids and
+    other sampling frames."""
+    stores = [s for g in GROUPS for s in held_out.get(g, [])]
+    if not stores:
+        raise ValueError("no held-out stores given (--interpolation and/or --extrapolation)")
+    check_grid(stores, model.grid)
+    frame_of(stores, (model.row_dt, model.bin_size))
+    check_no_leak(meta, stores)
+    groups = {
+        g: [evaluate_store(model, s, steps, starts) for s in held_out[g]]
+        for g in GROUPS
+        if held_out.get(g)
+    }
+    every = [p for pts in groups.values() for p in pts]
+    result: dict[str, Any] = {
+        "model": model.kind,
+        "history": model.history,
+        "horizon": model.horizon,
+        "trained_on": meta.get("train_points", []),
+        "train_seconds": meta.get("seconds"),
+        "overall": combine(every),
+        "groups": {
+            g: {"overall": combine(p), "points": [public(x) for x in p]} for g, p in groups.items()
+        },
+        "plots": {},
+    }
+    result["summary"] = summary_line(result)
+    if plots_dir is not None:
+        result["plots"] = _plots(
+            model.kind, groups, result, Path(plots_dir), Path(json_dir or plots_dir)
+        )
+    return result
+
+
+def summary_line(result: dict[str, Any]) -> str:
+    """One line: one-step and 50-step velocity errors and the mass error per group."""
+    parts = []
+    for g, data in result["groups"].items():
+        o = data["overall"]
+        parts.append(
+            f"{g} velocity error one-step {o['one_step']['velocity']:.3f}, "
+            f"{o['rollout_at']['50']['steps']}-step {o['rollout_at']['50']['velocity']:.3f}, "
+            f"mass within {100 * o['mass']['max_abs_error']:.1f} % over {o['mass']['steps']} steps"
+        )
+    return f"{result['model']}: " + "; ".join(parts)
+
+
+def _plots(
+    kind: str,
+    groups: dict[str, list[dict[str, Any]]],
+    result: dict[str, Any],
+    pdir: Path,
+    base: Path,
+) -> dict[str, Any]:
+    rel = lambda p: os.path.relpath(p, base)  # noqa: E731
+    series = {f"{g}: all": result["groups"][g]["overall"]["rollout"] for g in groups}
+    series.update({f"{g}: {p['name']}": p["rollout"] for g, pts in groups.items() for p in pts})
+    out: dict[str, Any] = {
+        "rollout": rel(
+            plots.rollout_curves(
+                series, pdir / "rollout.png", f"{kind}: rollouts on held-out points"
+            )
+        )
+    }
+    out["slices"] = {}
+    for g, pts in groups.items():
+        for i, p in enumerate(pts):
+            fields = p["_rollout"]["fields"][:, 0]
+            length = fields.shape[1]
+            steps = sorted({s for s in (1, 10, 50, length) if s <= length})
+            png = plots.density_slices(
+                fields, steps, pdir / f"{g}_{i:02d}_slices.png", f"{kind}, {g}: {p['name']}"
+            )
+            out["slices"][f"{g}: {p['name']}"] = rel(png)
+    return out
+
+
+def validate_dynamics_job(
+    model_dir: str | Path,
+    interpolation: list[str | Path],
+    extrapolation: list[str | Path],
+    out: str | Path,
+    config: dict[str, Any],
+    plots_dir: str | Path | None = None,
+) -> dict[str, Any]:
+    """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default:
+    ``plots/{name}`` beside it, as :func:`dozerlab.sweep.dynamics_plots_path`; the folder named
+    after the JSON is the model's), and an MLflow validate_dynamics run."""
+    import mlflow
+
+    model, meta = pyfunc.load(model_dir)
+    out = Path(out)
+    pdir = Path(plots_dir) if plots_dir else out.parent / "plots" / out.stem
+    held = {
+        "interpolation": [load_store(p) for p in interpolation],
+        "extrapolation": [load_store(p) for p in extrapolation],
+    }
+    dyn = config["dynamics"]
+    params = {
+        "model_dir": str(model_dir),
+        "interpolation": ",".join(map(str, interpolation)),
+        "extrapolation": ",".join(map(str, extrapolation)),
+        "rollout_steps": dyn["rollout_steps"],
+        "rollout_starts": dyn["rollout_starts"],
+    }
+    tags = {"model": model.kind}
+    with job_run(
+        config,
+        f"validate dynamics {model.kind}",
+        rule="validate_dynamics",
+        tags=tags,
+        params=params,
+    ) as run:
+        result = validate_dynamics(
+            model, meta, held, dyn["rollout_steps"], dyn["rollout_starts"], pdir, out.parent
+        )
+        with atomic_output(out) as tmp:
+            tmp.write_text(json.dumps(result, indent=1))
+        if run is not None:
+            mlflow.log_metrics(flat_metrics(result))
+            mlflow.log_artifact(str(out))
+            mlflow.log_artifacts(str(pdir), artifact_path="plots")
+    return result
+
+
+def flat_metrics(result: dict[str, Any]) -> dict[str, float]:
+    """``{group}.{metric}.{field}`` keys of the overall and per-group figures, finite only."""
+    out = {}
+    for label, o in [("overall", result["overall"])] + [
+        (g, d["overall"]) for g, d in result["groups"].items()
+    ]:
+        for f, value in o["one_step"].items():
+            out[f"{label}.one_step.{f}"] = value
+        for k, at in o["rollout_at"].items():
+            for f in ("velocity", "density"):
+                out[f"{label}.rollout_{k}.{f}"] = at[f]
+        out[f"{label}.mass.max_abs_error"] = o["mass"]["max_abs_error"]
+    return {k: float(v) for k, v in out.items() if v == v and abs(v) != float("inf")}

@@ -1,0 +1,251 @@
+"""The evolution models: ``persistence``, ``ridge`` and ``unet``, each a :class:`DynamicsModel`.
+
+Raw store arrays in, the fields of the next m rows out, in physical units. ``persistence``
+repeats the last row (the baseline). The others start from the last row carried m rows ahead by
+:func:`~dozerlab.learn.dynamics.advection.advect` (the frame shift and the material's own
+motion made explicit) and add a learned correction, in units of the training residuals' spread:
+``ridge`` a closed-form linear map of each bin's 3×3×3 neighbourhood of the channels, its
+position and the blade control (a 3D convolution fitted by ridge regression; it cannot
+diverge), ``unet`` a small 3D U-Net on the same channels. Input channels per history row: the
+density and the velocity relative to that row's blade velocity; per predicted row: the advected
+density and velocity relative to the blade. Normalisation lives in buffers, so a state dict is
+the whole model.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from dozerlab.learn.dynamics.advection import advect
+from dozerlab.learn.models import pad_even
+
+DYNAMICS_MODELS = ("persistence", "ridge", "unet")
+#: Field channels of a row: density, then the three velocity components.
+FIELD_CHANNELS = 4
+
+
+def coordinates(grid: tuple[int, int, int]) -> torch.Tensor:
+    """(3, X, Y, Z) bin positions scaled to [-1, 1] along each axis."""
+    axes = [torch.linspace(-1.0, 1.0, n) if n > 1 else torch.zeros(1) for n in grid]
+    return torch.stack(torch.meshgrid(*axes, indexing="ij"))
+
+
+class RidgeStencil(nn.Module):
+    """Linear in each bin's 3×3×3 neighbourhood of the channels (edges replicated), its
+    position and the blade control, with weights of its own for each layer of bins along x
+    (distance from the blade): the front layer, where unknown material enters, and the layers
+    at the blade face follow other rules than the middle. Fitted in closed form (:mod:`.train`).
+    """
+
+    def __init__(self, channels: int, cond: int, outputs: int, layers: int) -> None:
+        super().__init__()
+        d = 27 * channels + 3 + cond
+        self.weight = nn.Parameter(torch.zeros(layers, d, outputs))
+        self.bias = nn.Parameter(torch.zeros(layers, outputs))
+
+    def design(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """Design rows (B, X, Y·Z, 27·C + 3 + cond): the stencil, the position, the control."""
+        b, ch, *grid = x.shape
+        pad = F.pad(x, (1, 1, 1, 1, 1, 1), mode="replicate")
+        st = pad.unfold(2, 3, 1).unfold(3, 3, 1).unfold(4, 3, 1)  # B, C, X, Y, Z, 3, 3, 3
+        n = grid[1] * grid[2]
+        st = st.permute(0, 2, 3, 4, 1, 5, 6, 7).reshape(b, grid[0], n, ch * 27)
+        pos = coords.permute(1, 2, 3, 0).reshape(1, grid[0], n, 3).expand(b, -1, -1, -1)
+        cond = c[:, None, None, :].expand(-1, grid[0], n, -1)
+        return torch.cat([st, pos, cond], dim=-1)
+
+    def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        b, _, *grid = x.shape
+        out = torch.einsum("bxnd,xdo->bxno", self.design(x, coords, c), self.weight)
+        out = out + self.bias[None, :, None, :]
+        return out.reshape(b, *grid, -1).permute(0, 4, 1, 2, 3)
+
+
+def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
+    pad = (k - 1) // 2 if stride == 1 else 0
+    return nn.Sequential(nn.Conv3d(cin, cout, k, stride=stride, padding=pad), nn.GELU())
+
+
+class EvolutionUNet(nn.Module):
+    """A small 3D U-Net (two stride-2 levels, skips) on the channels, the bin positions and the
+    broadcast blade control; its last layer starts at zero, so training starts from advection."""
+
+    def __init__(self, channels: int, cond: int, outputs: int, width: int = 8) -> None:
+        super().__init__()
+        w = width
+        self.e0 = nn.Sequential(_conv(channels + cond + 3, w, 1), _conv(w, w))
+        self.e1 = nn.Sequential(_conv(w, 2 * w, 2, 2), _conv(2 * w, 2 * w))
+        self.e2 = nn.Sequential(_conv(2 * w, 2 * w, 2, 2), _conv(2 * w, 2 * w))
+        self.d1 = _conv(4 * w, 2 * w)
+        self.d0 = _conv(3 * w, w)
+        self.out = nn.Conv3d(w, outputs, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        b, grid = x.shape[0], x.shape[2:]
+        cond = c[:, :, None, None, None].expand(-1, -1, *grid)
+        h0 = self.e0(torch.cat([x, cond, coords.expand(b, -1, -1, -1, -1)], dim=1))
+        h1 = self.e1(pad_even(h0))
+        h2 = self.e2(pad_even(h1))
+        u1 = F.interpolate(h2, size=h1.shape[2:], mode="trilinear", align_corners=False)
+        u1 = self.d1(torch.cat([u1, h1], dim=1))
+        u0 = F.interpolate(u1, size=grid, mode="trilinear", align_corners=False)
+        return self.out(self.d0(torch.cat([u0, h0], dim=1)))
+
+
+class DynamicsModel(nn.Module):
+    """Raw store arrays → the fields of the next ``horizon`` rows, normalisation included.
+
+    ``forward(velocity (B, H, X, Y, Z, 3) m/s, density (B, H, X, Y, Z) kg/m³, blade_velocity
+    (B, H + m, 3) m/s)`` → velocity (B, m, X, Y, Z, 3) m/s (world frame) and density
+    (B, m, X, Y, Z) kg/m³; float32, rows oldest first. ``row_dt`` (s) and ``bin_size`` (m) are
+    those of the training stores: the frame shift per row depends on them.
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        grid: tuple[int, int, int],
+        history: int,
+        horizon: int,
+        row_dt: float,
+        bin_size: tuple[float, float, float],
+        width: int = 8,
+    ) -> None:
+        super().__init__()
+        if kind not in DYNAMICS_MODELS:
+            raise ValueError(f"dynamics model must be one of {list(DYNAMICS_MODELS)}, got {kind!r}")
+        if history < 1 or horizon < 1:
+            raise ValueError(f"history and horizon must be >= 1, got {history} and {horizon}")
+        self.kind, self.grid = kind, tuple(int(n) for n in grid)
+        self.history, self.horizon, self.width = int(history), int(horizon), int(width)
+        self.row_dt, self.bin_size = float(row_dt), tuple(float(b) for b in bin_size)
+        channels = FIELD_CHANNELS * (self.history + self.horizon)
+        cond = 3 * (self.history + self.horizon)
+        outputs = FIELD_CHANNELS * self.horizon
+        self.register_buffer("coords", coordinates(self.grid), persistent=False)
+        for name, n, value in (
+            ("chan_mean", channels, 0.0),
+            ("chan_std", channels, 1.0),
+            ("cond_mean", cond, 0.0),
+            ("cond_std", cond, 1.0),
+            ("res_std", FIELD_CHANNELS, 1.0),
+        ):
+            self.register_buffer(name, torch.full((n,), value))
+        self.net: nn.Module | None = None
+        if kind == "ridge":
+            self.net = RidgeStencil(channels, cond, outputs, self.grid[0])
+        elif kind == "unet":
+            self.net = EvolutionUNet(channels, cond, outputs, self.width)
+
+    def spec(self) -> dict[str, Any]:
+        """What it takes to rebuild this model before loading its state dict."""
+        return {
+            "kind": self.kind,
+            "grid": list(self.grid),
+            "history": self.history,
+            "horizon": self.horizon,
+            "row_dt": self.row_dt,
+            "bin_size": list(self.bin_size),
+            "width": self.width,
+        }
+
+    def base(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The last row carried m rows ahead by advection: (B, m, …, 3) and (B, m, …)."""
+        v, rho = velocity[:, -1], density[:, -1]
+        vs, rhos = [], []
+        for j in range(self.horizon):
+            rho, v = advect(rho, v, blade_velocity[:, self.history + j], self.row_dt, self.bin_size)
+            vs.append(v)
+            rhos.append(rho)
+        return torch.stack(vs, 1), torch.stack(rhos, 1)
+
+    @staticmethod
+    def channels(
+        velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> torch.Tensor:
+        """(B, 4·R, X, Y, Z) density and velocity relative to the blade of R rows, with
+        ``blade_velocity`` (B, R, 3) the blade velocity of each row."""
+        rel = velocity - blade_velocity[:, :, None, None, None, :]
+        ch = torch.cat([density.unsqueeze(-1), rel], dim=-1)  # B, R, X, Y, Z, 4
+        return ch.permute(0, 1, 5, 2, 3, 4).flatten(1, 2)
+
+    def inputs(
+        self,
+        velocity: torch.Tensor,
+        density: torch.Tensor,
+        blade_velocity: torch.Tensor,
+        base: tuple[torch.Tensor, torch.Tensor],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Normalised channels (B, 4(H + m), X, Y, Z) and blade control (B, 3(H + m))."""
+        x = torch.cat(
+            [
+                self.channels(velocity, density, blade_velocity[:, : self.history]),
+                self.channels(base[0], base[1], blade_velocity[:, self.history :]),
+            ],
+            dim=1,
+        )
+        x = (x - self.chan_mean[None, :, None, None, None]) / self.chan_std[
+            None, :, None, None, None
+        ]
+        c = (blade_velocity.flatten(1) - self.cond_mean) / self.cond_std
+        return x, c
+
+    def check(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> None:
+        """Refuse arrays whose shapes do not fit this model (grid, history, horizon)."""
+        from dozerlab.runtime import DozerlabError
+
+        b, h, m = density.shape[0], self.history, self.horizon
+        expected = {
+            "velocity": (b, h, *self.grid, 3),
+            "density": (b, h, *self.grid),
+            "blade_velocity": (b, h + m, 3),
+        }
+        got = {
+            "velocity": velocity.shape,
+            "density": density.shape,
+            "blade_velocity": blade_velocity.shape,
+        }
+        for k, shape in expected.items():
+            if tuple(got[k]) != shape:
+                raise DozerlabError(
+                    f"input '{k}' has shape {tuple(got[k])}, expected {shape}: the model takes "
+                    f"history = {h} rows on a {self.grid} grid and predicts horizon = {m} rows "
+                    "(blade_velocity: the H known rows and the m rows to predict)"
+                )
+
+    def forward(
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        self.check(velocity, density, blade_velocity)
+        if self.net is None:
+            m = self.horizon
+            return (
+                velocity[:, -1:].expand(-1, m, -1, -1, -1, -1).clone(),
+                density[:, -1:].expand(-1, m, -1, -1, -1).clone(),
+            )
+        base = self.base(velocity, density, blade_velocity)
+        x, c = self.inputs(velocity, density, blade_velocity, base)
+        return self.correct(base, self.net(x, self.coords, c))
+
+    def correct(
+        self, base: tuple[torch.Tensor, torch.Tensor], residual: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Base fields plus the normalised residual (B, 4m, X, Y, Z); density kept >= 0."""
+        b, m = residual.shape[0], self.horizon
+        r = (
+            residual.view(b, m, FIELD_CHANNELS, *self.grid)
+            * self.res_std[None, None, :, None, None, None]
+        )
+        density = (base[1] + r[:, :, 0]).clamp_min(0)
+        velocity = base[0] + r[:, :, 1:].permute(0, 1, 3, 4, 5, 2)
+        return velocity, density

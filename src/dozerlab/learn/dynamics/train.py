@@ -1,0 +1,282 @@
+"""Training of the evolution models: normalisation from the training windows, the ridge in
+closed form, the U-Net by Adam through a few of its own calls (unrolled, with input noise) with
+early stopping on that rollout loss over the validation blocks.
+
+The losses weight the velocity error of each bin by its true density (empty bins' velocity is
+a convention, not an observation), as the velocity metric does (:mod:`.metrics`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dozerlab.learn.data import StoreData, split_train_validation
+from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
+from dozerlab.learn.dynamics.windows import WindowBatches, frame_of, windows
+from dozerlab.learn.fitting import NormalEquations, device_for, guard
+
+EpochCallback = Callable[[int, float, float], None]
+
+
+@dataclass
+class DynamicsTrainResult:
+    """A trained evolution model with its loss history and timing (s)."""
+
+    model: DynamicsModel
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+    samples: dict[str, int] = field(default_factory=dict)
+    seconds: float = 0.0
+    model_uri: str = ""
+
+
+def _chunks(n: int, size: int) -> list[np.ndarray]:
+    return [np.arange(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+@torch.no_grad()
+def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 512) -> float:
+    """Set the model's channel, control and residual statistics from (at most ``limit``, evenly
+    spread) training windows; returns the mean density of their bins (kg/m³), the scale of the
+    loss's mass weights."""
+    pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).astype(int))
+    xs, cs, res, rho_sum, count = [], [], [], 0.0, 0
+    for sel in np.array_split(pick, max(1, len(pick) // 64)):
+        v, rho, vb, v_true, rho_true = data.get(sel, model.horizon)
+        base = model.base(v, rho, vb)
+        x = torch.cat(
+            [
+                model.channels(v, rho, vb[:, : model.history]),
+                model.channels(*base, vb[:, model.history :]),
+            ],
+            dim=1,
+        )
+        xs.append(x.transpose(0, 1).flatten(1).double())
+        cs.append(vb.flatten(1).double())
+        w = rho_true.double().unsqueeze(-1)
+        dv = (v_true - base[0]).double()
+        res.append(
+            torch.cat(
+                [
+                    ((rho_true - base[1]).double() ** 2).sum().view(1),
+                    (w * dv * dv).flatten(0, -2).sum(0),
+                    w.sum().view(1),
+                    torch.tensor([float(rho_true[..., 0].numel())], dtype=torch.float64),
+                ]
+            )
+        )
+        rho_sum += float(rho_true.double().sum())
+        count += rho_true.numel()
+    x, c, r = torch.cat(xs, 1), torch.cat(cs), torch.stack(res).sum(0)
+
+    def std(a: torch.Tensor, dim: int) -> torch.Tensor:
+        s = a.std(dim)
+        return torch.where(s > 1e-6 * (s.max() + 1e-30), s, torch.ones_like(s))
+
+    model.chan_mean.copy_(x.mean(1))
+    model.chan_std.copy_(std(x, 1))
+    model.cond_mean.copy_(c.mean(0))
+    model.cond_std.copy_(std(c, 0))
+    spread = torch.cat([(r[0] / r[5]).sqrt().view(1), (r[1:4] / r[4].clamp_min(1e-30)).sqrt()])
+    model.res_std.copy_(torch.where(spread > 0, spread, torch.ones_like(spread)))
+    return rho_sum / max(count, 1) or 1.0
+
+
+def field_loss(
+    model: DynamicsModel,
+    pred: tuple[torch.Tensor, torch.Tensor],
+    true_v: torch.Tensor,
+    true_rho: torch.Tensor,
+    rho_scale: float,
+) -> torch.Tensor:
+    """Mean squared error in units of the residual spread: density per bin, velocity per bin
+    weighted by its true density over ``rho_scale``."""
+    s = model.res_std
+    e_rho = ((pred[1] - true_rho) / s[0]) ** 2
+    e_v = (((pred[0] - true_v) / s[1:]) ** 2).sum(-1) * (true_rho / rho_scale)
+    return e_rho.mean() + e_v.mean() / 3
+
+
+@torch.no_grad()
+def fit_ridge(
+    model: DynamicsModel, data: WindowBatches, alpha: float, every: int, rho_scale: float
+) -> None:
+    """Closed-form ridge of the normalised residuals on every ``every``-th training window, one
+    fit per layer of bins along x: density unweighted, velocity weighted by true density, one
+    solve per predicted row."""
+    net, m, layers = model.net, model.horizon, model.grid[0]
+    assert isinstance(net, RidgeStencil)
+    d = net.weight.shape[1]
+    eq_rho = [NormalEquations(d, m) for _ in range(layers)]
+    eq_v = [[NormalEquations(d, 3) for _ in range(m)] for _ in range(layers)]
+    pick = np.arange(0, len(data), max(1, every))
+    for sel in tqdm(np.array_split(pick, max(1, len(pick) // 16)), desc="ridge", unit="batch"):
+        v, rho, vb, v_true, rho_true = data.get(sel, m)
+        base = model.base(v, rho, vb)
+        x, c = model.inputs(v, rho, vb, base)
+        rows = net.design(x, model.coords, c)  # B, X, YZ, d
+        y_rho = ((rho_true - base[1]) / model.res_std[0]).flatten(3)  # B, m, X, YZ
+        y_v = ((v_true - base[0]) / model.res_std[1:]).flatten(3, 4)  # B, m, X, YZ, 3
+        w_v = (rho_true / rho_scale).flatten(3)
+        for i in range(layers):
+            r = rows[:, i].reshape(-1, d)
+            eq_rho[i].add(r, y_rho[:, :, i].permute(0, 2, 1).reshape(-1, m))
+            for j in range(m):
+                eq_v[i][j].add(r, y_v[:, j, i].reshape(-1, 3), w_v[:, j, i].reshape(-1))
+    for i in range(layers):
+        w_rho, b_rho = eq_rho[i].solve(alpha)
+        for j in range(m):
+            w_vel, b_vel = eq_v[i][j].solve(alpha)
+            f = FIELD_CHANNELS * j
+            net.weight[i, :, f] = w_rho[:, j].float()
+            net.bias[i, f] = float(b_rho[j])
+            net.weight[i, :, f + 1 : f + FIELD_CHANNELS] = w_vel.float()
+            net.bias[i, f + 1 : f + FIELD_CHANNELS] = b_vel.float()
+
+
+def unrolled_loss(
+    model: DynamicsModel,
+    batch: tuple[torch.Tensor, ...],
+    calls: int,
+    rho_scale: float,
+    noise: float = 0.0,
+    gen: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Mean loss over ``calls`` successive calls, each fed the model's own previous output.
+
+    ``batch`` as :meth:`WindowBatches.get` returns it with horizon calls·m. ``noise`` adds
+    Gaussian noise of that many channel spreads to the first input rows (density kept >= 0)."""
+    v, rho, vb, v_true, rho_true = batch
+    h, m = model.history, model.horizon
+    if noise > 0:
+        sv = model.chan_std[1:4].view(1, 1, 1, 1, 1, 3)
+        v = v + noise * sv * torch.randn(v.shape, generator=gen, device=v.device)
+        noise_rho = torch.randn(rho.shape, generator=gen, device=rho.device)
+        rho = (rho + noise * model.chan_std[0] * noise_rho * (rho > 0)).clamp_min(0)
+    total = torch.zeros((), device=v.device)
+    for k in range(calls):
+        pred = model(v, rho, vb[:, k * m : k * m + h + m])
+        total = total + field_loss(
+            model, pred, v_true[:, k * m : (k + 1) * m], rho_true[:, k * m : (k + 1) * m], rho_scale
+        )
+        v = torch.cat([v, pred[0]], 1)[:, -h:]
+        rho = torch.cat([rho, pred[1]], 1)[:, -h:]
+    return total / calls
+
+
+def train_dynamics(
+    kind: str,
+    stores: list[StoreData],
+    config: dict[str, Any],
+    *,
+    device: str | None = None,
+    on_epoch: EpochCallback | None = None,
+    progress: bool = True,
+) -> DynamicsTrainResult:
+    """Train evolution model ``kind`` on ``stores`` (the training points) with
+    ``config['dynamics']``; early stopping on the blocks of ``learn.validation_fraction`` /
+    ``learn.validation_block`` (those of the force models)."""
+    dyn, learn, seed = config["dynamics"], config["learn"], int(config.get("seed", 0))
+    torch.manual_seed(seed)
+    dev = device_for(device)
+    row_dt, bin_size = frame_of(stores)
+    h, m = dyn["history"], dyn["horizon"]
+    calls = dyn["unroll"] if kind == "unet" else 1
+    train_s, val_s = split_train_validation(
+        windows(stores, h, m * calls), learn["validation_fraction"], learn["validation_block"]
+    )
+    train, val = WindowBatches(train_s, dev), WindowBatches(val_s, dev)
+    model = DynamicsModel(kind, stores[0].grid, h, m, row_dt, bin_size, dyn["width"]).to(dev)
+    result = DynamicsTrainResult(model, samples={"train": len(train), "validation": len(val)})
+    t0 = time.perf_counter()
+    rho_scale = fit_normalization(model, train)
+    if kind == "ridge":
+        fit_ridge(model, train, dyn["ridge_alpha"], dyn["ridge_every"], rho_scale)
+    if kind == "unet":
+        _fit_unet(model, train, val, dyn, seed, rho_scale, result, on_epoch, progress)
+    else:
+        tr, va = (_mean_loss(model, d, 1, rho_scale) for d in (train, val))
+        guard(va, "the validation loss", "raise dynamics.ridge_alpha")
+        result.train_loss, result.val_loss = [tr], [va]
+        if on_epoch:
+            on_epoch(0, tr, va)
+    result.seconds = time.perf_counter() - t0
+    model.eval()
+    return result
+
+
+@torch.no_grad()
+def _mean_loss(
+    model: DynamicsModel, data: WindowBatches, calls: int, rho_scale: float, limit: int = 256
+) -> float:
+    model.eval()
+    pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).astype(int))
+    total = 0.0
+    for sel in np.array_split(pick, max(1, len(pick) // 32)):
+        batch = data.get(sel, model.horizon * calls)
+        total += float(unrolled_loss(model, batch, calls, rho_scale)) * len(sel)
+    return total / len(pick)
+
+
+def _fit_unet(
+    model: DynamicsModel,
+    train: WindowBatches,
+    val: WindowBatches,
+    dyn: dict[str, Any],
+    seed: int,
+    rho_scale: float,
+    result: DynamicsTrainResult,
+    on_epoch: EpochCallback | None,
+    progress: bool,
+) -> None:
+    calls = dyn["unroll"]
+    opt = torch.optim.Adam(model.parameters(), lr=dyn["learning_rate"])
+    gen = np.random.default_rng(seed)
+    tgen = torch.Generator(device=train.device).manual_seed(seed)
+    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    bar = tqdm(
+        range(dyn["epochs"]), desc="train unet (dynamics)", unit="epoch", disable=not progress
+    )
+    for epoch in bar:
+        model.train()
+        order = gen.permutation(len(train))[: dyn["samples_per_epoch"]]
+        total = 0.0
+        for sel in _chunks(len(order), dyn["batch_size"]):
+            batch = train.get(order[sel], model.horizon * calls)
+            loss = unrolled_loss(model, batch, calls, rho_scale, dyn["noise"], tgen)
+            value = float(loss.detach())
+            guard(value, f"the training loss at epoch {epoch}", "lower dynamics.learning_rate")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += value * len(sel)
+        tr = total / len(order)
+        va = _mean_loss(model, val, calls, rho_scale)
+        guard(va, f"the validation rollout loss at epoch {epoch}", "lower dynamics.learning_rate")
+        result.train_loss.append(tr)
+        result.val_loss.append(va)
+        bar.set_postfix(train=f"{tr:.4f}", val=f"{va:.4f}")
+        if on_epoch:
+            on_epoch(epoch, tr, va)
+        if va < best:
+            best, best_state, waited, result.best_epoch = (
+                va,
+                copy.deepcopy(model.state_dict()),
+                0,
+                epoch,
+            )
+        else:
+            waited += 1
+            if waited >= dyn["patience"]:
+                break
+    model.load_state_dict(best_state)

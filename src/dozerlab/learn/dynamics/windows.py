@@ -1,0 +1,85 @@
+"""Windows of field stores for the evolution models: the fields of the last H rows and the blade
+velocity of those rows and of the next m (the blade's control is known in advance) → the fields
+of the next m rows.
+
+Windows are :class:`~dozerlab.learn.data.Samples` of the force models' data layer, cut where
+the next m rows would leave the store, so they never cross stores, and they are split for early
+stopping into the same blocks as the force models' samples. The velocity at row t+1 is the one
+that moved the particles from t to t+1, and ``blade_velocity`` at row k is the velocity of the
+step that made row k: the step from t to t+j moves the grid by blade_velocity[t+j]·Δt.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from dozerlab.learn.data import Samples, StoreData, check_grid, concat
+from dozerlab.runtime import DozerlabError
+
+
+def windows(stores: list[StoreData], history: int, horizon: int) -> Samples:
+    """All windows of ``stores`` with ``history`` rows of input and ``horizon`` rows ahead:
+    ``index[i]`` is the last input row; rows index+1 … index+horizon are its targets."""
+    if horizon < 1:
+        raise ValueError(f"dynamics.horizon must be >= 1, got {horizon}")
+    for s in stores:
+        if s.density.shape[0] < history + horizon:
+            raise DozerlabError(
+                f"{s.source or s.name}: {s.density.shape[0]} rows is fewer than history + horizon = "
+                f"{history + horizon} (dynamics.history, dynamics.horizon)"
+            )
+    samples = concat(stores, history)
+    ends = np.cumsum([s.density.shape[0] for s in stores])
+    return samples.subset(samples.index + horizon < ends[samples.store_of])
+
+
+def frame_of(
+    stores: list[StoreData], expected: tuple[float, tuple[float, float, float]] | None = None
+) -> tuple[float, tuple[float, float, float]]:
+    """The common row interval (s) and bin size (m) of ``stores`` (or ``expected``); a
+    DozerlabError names a store whose frame is unknown or differs."""
+    check_grid(stores)
+    ref = expected or (stores[0].row_dt, stores[0].bin_size)
+    for s in stores:
+        known = s.row_dt > 0 and all(b > 0 for b in s.bin_size)
+        if not known:
+            raise DozerlabError(
+                f"{s.source or s.name}: the store lacks its row interval or bin size "
+                "(attributes dt, sample_every, bin_size), which the evolution models need"
+            )
+        if not np.allclose((s.row_dt, *s.bin_size), (ref[0], *ref[1]), rtol=1e-5):
+            raise DozerlabError(
+                f"{s.source or s.name}: row interval {s.row_dt} s and bins {s.bin_size} m differ from "
+                f"the model's {ref[0]} s and {ref[1]} m; evolution models apply to one sampling only"
+            )
+    return float(ref[0]), tuple(float(b) for b in ref[1])  # type: ignore[return-value]
+
+
+class WindowBatches:
+    """The windows' store arrays as tensors on ``device``; :meth:`get` gathers a batch."""
+
+    def __init__(self, samples: Samples, device: torch.device) -> None:
+        self.samples, self.device = samples, device
+        self.velocity = torch.from_numpy(samples.velocity).to(device)
+        self.density = torch.from_numpy(samples.density).to(device)
+        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def get(self, sel: np.ndarray, horizon: int) -> tuple[torch.Tensor, ...]:
+        """velocity (B, H, X, Y, Z, 3), density (B, H, X, Y, Z), blade_velocity (B, H + m, 3) of
+        the inputs, and the true velocity (B, m, …, 3) and density (B, m, …) of the next m rows."""
+        h = self.samples.history
+        rows = torch.from_numpy(
+            self.samples.index[sel, None] + np.arange(1 - h, horizon + 1)[None, :]
+        ).to(self.device)
+        past, ahead = rows[:, :h], rows[:, h:]
+        return (
+            self.velocity[past],
+            self.density[past],
+            self.blade_velocity[rows],
+            self.velocity[ahead],
+            self.density[ahead],
+        )

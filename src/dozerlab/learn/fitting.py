@@ -1,0 +1,98 @@
+"""Pieces every trainer shares: the device, the divergence guard and the closed-form ridge
+solvers (one on a design matrix held whole, one on normal equations accumulated in chunks)."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from dozerlab.runtime import DozerlabError
+
+
+class TrainingDiverged(DozerlabError):
+    """The loss became NaN or infinite."""
+
+
+def device_for(name: str | None = None) -> torch.device:
+    """``name`` if given, else CUDA when present, else CPU."""
+    return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+def guard(value: float, what: str, hint: str = "lower the learning rate") -> None:
+    """Raise :class:`TrainingDiverged` naming ``what`` when ``value`` is NaN or infinite."""
+    if not math.isfinite(value):
+        raise TrainingDiverged(
+            f"training diverged: {what} is {value}; check the stores for non-finite values or {hint}"
+        )
+
+
+def solve_ridge(
+    x: torch.Tensor, y: torch.Tensor, alpha: float, *, center: bool = True
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ridge regression y ≈ x w + b minimising mean squared error + ``alpha``·‖w‖² over
+    standardised columns of x (intercept unpenalised; none when ``center`` is False).
+
+    x (N, D), y (N, K), float64; returns w (D, K) and b (K,) in the units of x and y. Solved in
+    the dual (N×N) when features outnumber samples; it cannot diverge.
+    """
+    if alpha < 0:
+        raise ValueError(f"ridge alpha must be >= 0, got {alpha}")
+    n, d = x.shape
+    xm, ym = (x.mean(0), y.mean(0)) if center else (torch.zeros_like(x[0]), torch.zeros_like(y[0]))
+    xs = x.std(0).clamp_min(1e-12)
+    x = (x - xm) / xs
+    lam = alpha * n + 1e-9 * n
+    if d > n:
+        gram = x @ x.T
+        gram.diagonal().add_(lam)
+        w = x.T @ torch.linalg.solve(gram, y - ym)
+    else:
+        a = x.T @ x
+        a.diagonal().add_(lam)
+        w = torch.linalg.solve(a, x.T @ (y - ym))
+    w = w / xs[:, None]
+    return w, ym - xm @ w
+
+
+class NormalEquations:
+    """Weighted ridge regression from design rows added in chunks (too many to hold at once).
+
+    ``add(x (N, D), y (N, K), weight (N,) or None)`` accumulates the weighted moments in float64;
+    ``solve(alpha)`` minimises the weighted mean squared error + ``alpha``·‖w‖² over
+    standardised columns, intercept unpenalised, and returns w (D, K) and b (K,).
+    """
+
+    def __init__(self, d: int, k: int) -> None:
+        f64 = torch.float64
+        self.sw = torch.zeros((), dtype=f64)
+        self.sx, self.sy = torch.zeros(d, dtype=f64), torch.zeros(k, dtype=f64)
+        self.sxx, self.sxy = torch.zeros(d, d, dtype=f64), torch.zeros(d, k, dtype=f64)
+
+    def add(self, x: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | None = None) -> None:
+        # chunk products in the rows' precision (standardised-scale features), sums in float64
+        xw = x if weight is None else x * weight[:, None]
+        self.sw += x.shape[0] if weight is None else weight.double().sum()
+        self.sx += xw.double().sum(0)
+        self.sy += (y if weight is None else y * weight[:, None]).double().sum(0)
+        self.sxx += (xw.T @ x).double()
+        self.sxy += (xw.T @ y).double()
+
+    def solve(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:
+        if alpha < 0:
+            raise ValueError(f"ridge alpha must be >= 0, got {alpha}")
+        if float(self.sw) <= 0:
+            raise DozerlabError("ridge regression without samples (all weights zero)")
+        n = self.sw
+        xm, ym = self.sx / n, self.sy / n
+        cov = self.sxx / n - torch.outer(xm, xm)
+        cxy = self.sxy / n - torch.outer(xm, ym)
+        var = cov.diagonal().clamp_min(0)
+        # a column constant over the rows (rounding leaves a tiny variance) carries nothing
+        live = (var > 1e-10 * var.max()).double()
+        xs = torch.where(live > 0, var.sqrt(), torch.ones_like(var))
+        a = cov * torch.outer(live, live) / torch.outer(xs, xs)
+        a.diagonal().add_(alpha + 1e-9)
+        w = torch.linalg.solve(a, cxy * live[:, None] / xs[:, None]) / xs[:, None]
+        guard(float(w.abs().max()), "the ridge solution", "raise the ridge alpha")
+        return w, ym - xm @ w

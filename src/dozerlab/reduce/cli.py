@@ -1,0 +1,91 @@
+"""``dozerlab reduce`` and ``compare-reduced``: the live reduced simulation and its comparison."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "reduce", help="run a sweep point with the reduced loop (learned fields + projection)"
+    )
+    p.add_argument("--bed", required=True, help="settled bed (.npz from `dozerlab bed`)")
+    p.add_argument("--trajectory", required=True, help="blade trajectory (.csv)")
+    p.add_argument(
+        "--dynamics",
+        required=True,
+        help="field-evolution model: an MLflow pyfunc directory (results/dynamics/NAME) or "
+        "'replay' (the point's NDEM fields, --ndem)",
+    )
+    p.add_argument("--ndem", default=None, help="the point's NDEM field store (for replay)")
+    p.add_argument(
+        "--force-model", required=True, help="force model directory (results/models/NAME)"
+    )
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
+    p.add_argument("--out", required=True, help="field store to write (.zarr)")
+    p.add_argument("--state", required=True, help="final particle state to write (.npz)")
+    p.add_argument("--threads", type=int, default=1, help="numba/torch threads (default 1)")
+    p.add_argument("--scenario", default=None, help="label (default: the bed's scenario)")
+    p.add_argument("--speed", type=float, default=None, help="label in m/s")
+    p.add_argument("--depth", type=float, default=None, help="label in m")
+    p.set_defaults(func=_reduce)
+
+    p = sub.add_parser(
+        "compare-reduced",
+        help="measure a dynamics model's reduced runs against NDEM (held-out points)",
+    )
+    p.add_argument("--dynamics-model", required=True, help="dynamics model name (or replay)")
+    p.add_argument(
+        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
+    )
+    p.add_argument("--results", default="results", help="the workflow's results folder")
+    p.add_argument("--out", required=True, help="JSON to write (results/reduced/NAME.json)")
+    p.add_argument("--plots", required=True, help="folder for the plots and animations")
+    p.add_argument("--no-animation", action="store_true", help="skip the GIFs")
+    p.set_defaults(func=_compare)
+
+
+def _reduce(args: argparse.Namespace) -> int:
+    from dozerlab.config import load_config
+    from dozerlab.runtime import set_threads
+
+    set_threads(args.threads)
+    from dozerlab.reduce.jobs import reduce_job
+
+    metrics = reduce_job(
+        args.bed,
+        args.trajectory,
+        load_config(args.config),
+        args.dynamics,
+        args.force_model,
+        args.out,
+        args.state,
+        ndem_store=args.ndem,
+        scenario=args.scenario,
+        speed=args.speed,
+        depth=args.depth,
+    )
+    print(
+        f"reduced run: {metrics['reduced_steps']:.0f} steps in {metrics['wall_time_s']:.2f} s, "
+        f"largest overlap {metrics['max_overlap']:.3f} of a radius -> {args.out}"
+    )
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from dozerlab.config import load_config
+    from dozerlab.reduce.jobs import compare_job
+
+    summary = compare_job(
+        args.dynamics_model,
+        load_config(args.config),
+        args.results,
+        args.out,
+        args.plots,
+        animation=not args.no_animation,
+    )
+    for role, agg in summary["overall"].items():
+        print(f"{args.dynamics_model} {role}: " + ", ".join(f"{k} {v:.4g}" for k, v in agg.items()))
+    return 0

@@ -1,0 +1,190 @@
+"""The reduce and compare-reduced jobs: models loaded, runs tracked in MLflow, results written."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab import sweep as P
+from dozerlab.runtime import DozerlabError, atomic_output
+
+log = logging.getLogger(__name__)
+
+#: Per-role summary of the comparison: how each figure is aggregated over the points.
+AGGREGATE = {
+    "height_accuracy": np.mean,
+    "force_x_rel_rmse": np.mean,
+    "velocity_rel_l2": np.mean,
+    "density_rel_l2": np.mean,
+    "final_emd_m": np.mean,
+    "max_overlap_loop": np.max,
+    "max_overlap_final": np.max,
+    "body_depth_final_m": np.max,
+    "left_bed": np.sum,
+    "loop_speedup": np.min,
+    "job_speedup": np.min,
+}
+
+
+def reduce_job(
+    bed: str | Path,
+    trajectory: str | Path,
+    config: dict[str, Any],
+    dynamics: str | Path,
+    force_model: str | Path,
+    out: str | Path,
+    state: str | Path,
+    *,
+    ndem_store: str | Path | None = None,
+    scenario: str | None = None,
+    speed: float | None = None,
+    depth: float | None = None,
+) -> dict[str, float]:
+    """Load the models and run :func:`dozerlab.reduce.run.reduce_run` as a tracked MLflow run."""
+    from dozerlab import tracking
+    from dozerlab.fields.sampling import SamplingGrid
+    from dozerlab.reduce.models import ForcePredictor, load_field_model
+    from dozerlab.reduce.run import reduce_run
+
+    grid = SamplingGrid.from_config(config)
+    field_model = load_field_model(dynamics, grid.bins, ndem_store)
+    forces = ForcePredictor(force_model)
+    name = f"reduce {field_model.name} {scenario} v={speed} d={depth}"
+    tags = {
+        "scenario": scenario,
+        "speed": speed,
+        "depth": depth,
+        "model": field_model.name,
+        "force_model": forces.name,
+    }
+    with tracking.tracked_run(
+        name,
+        rule="reduce",
+        tags={k: v for k, v in tags.items() if v is not None},
+        params={"reduced": config["reduced"], "solver": config["solver"]},
+        experiment=config["mlflow"]["experiment"],
+    ) as run:
+        metrics = reduce_run(
+            bed,
+            trajectory,
+            config,
+            field_model,
+            forces,
+            out,
+            state,
+            scenario=scenario,
+            speed=speed,
+            depth=depth,
+        )
+        if run is not None:
+            import mlflow
+
+            mlflow.log_metrics(metrics)
+    return metrics
+
+
+def _summary(points: list[dict[str, Any]]) -> dict[str, float]:
+    out = {}
+    for key, agg in AGGREGATE.items():
+        values = [p[key] for p in points if p.get(key) is not None and np.isfinite(p[key])]
+        if values:
+            out[key] = float(agg(values))
+    return out
+
+
+def compare_job(
+    dynamics_model: str,
+    config: dict[str, Any],
+    results: str | Path,
+    out: str | Path,
+    plots: str | Path,
+    *,
+    animation: bool = True,
+) -> dict[str, Any]:
+    """Compare the reduced runs of every held-out point with NDEM; write ``out`` (JSON) and plots.
+
+    The JSON holds ``points`` (one entry per point: its role, metrics and which targets it
+    meets, ``reduced.targets``), ``overall`` (per role and ``all``: means of the errors, worst
+    overlaps, least speed-ups) and ``targets``. Logged as an MLflow run with the plots.
+    """
+    from dozerlab import tracking
+    from dozerlab.fields.store import open_store
+    from dozerlab.reduce import plots as rp
+    from dozerlab.reduce.compare import compare_point, targets_met
+
+    held_out = [p for p in P.sweep_points(config) if p.role != "train"]
+    if not held_out:
+        raise DozerlabError("the config's sweep has no held-out points to compare on")
+    plots = Path(plots)
+    targets = config["reduced"]["targets"]
+    entries: list[dict[str, Any]] = []
+    with tracking.tracked_run(
+        f"compare_reduced {dynamics_model}",
+        rule="compare_reduced",
+        tags={"model": dynamics_model},
+        params={"reduced": config["reduced"]},
+        experiment=config["mlflow"]["experiment"],
+    ) as run:
+        with atomic_output(plots) as tmp_plots:
+            tmp_plots.mkdir(parents=True)
+            for point in held_out:
+                ndem_store = P.field_path(results, point)
+                reduced_store = P.reduced_path(results, dynamics_model, point)
+                metrics, series = compare_point(
+                    ndem_store,
+                    reduced_store,
+                    P.bed_path(results, point.scenario),
+                    P.state_path(results, point),
+                    P.reduced_path(results, dynamics_model, point, "npz"),
+                    config,
+                    ndem_benchmark=P.simulate_benchmark_path(results, point),
+                    reduced_benchmark=P.reduce_benchmark_path(results, dynamics_model, point),
+                )
+                stem = f"{point.scenario}_{point.name}"
+                files = [
+                    rp.plot_force(series, metrics, tmp_plots / f"{stem}_force.png"),
+                    rp.plot_errors(series, metrics, tmp_plots / f"{stem}_fields.png"),
+                    rp.plot_height(series, metrics, tmp_plots / f"{stem}_height.png"),
+                ]
+                if animation:
+                    files.append(
+                        rp.animate_pair(
+                            open_store(ndem_store),
+                            open_store(reduced_store),
+                            tmp_plots / f"{stem}.gif",
+                        )
+                    )
+                entries.append(
+                    {
+                        "role": point.role,
+                        **metrics,
+                        "targets_met": targets_met(metrics, targets),
+                        "plots": [f.name for f in files],
+                    }
+                )
+                log.info("%s %s: %s", point.scenario, point.name, metrics)
+        overall = {
+            role: _summary([e for e in entries if e["role"] == role])
+            for role in ("interpolation", "extrapolation")
+        }
+        overall["all"] = _summary(entries)
+        summary = {
+            "dynamics_model": dynamics_model,
+            "targets": targets,
+            "points": entries,
+            "overall": {k: v for k, v in overall.items() if v},
+        }
+        with atomic_output(out) as tmp:
+            Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True))
+        if run is not None:
+            import mlflow
+
+            for role, agg in summary["overall"].items():
+                mlflow.log_metrics({f"{role}.{k}": v for k, v in agg.items()})
+            mlflow.log_artifacts(str(plots), artifact_path="plots")
+            mlflow.log_artifact(str(out))
+    return summary

@@ -1,0 +1,152 @@
+"""The learned parts the reduced loop drives: a field-evolution model and a force model.
+
+Field-evolution models come as MLflow pyfunc directories (``results/dynamics/{model}/``, the
+contract of the "Field-evolution models" issue): ``predict`` takes ``{"velocity": (B,H,Nx,Ny,Nz,3),
+"density": (B,H,Nx,Ny,Nz), "blade_velocity": (B,H+m,3)}`` float32 arrays as a store holds them and
+returns ``{"velocity": (B,m,Nx,Ny,Nz,3), "density": (B,m,Nx,Ny,Nz)}`` in physical units, with H
+and m in the model's metadata as ``history`` and ``horizon``. :class:`ReplayFieldModel` answers
+the same questions with a stored NDEM run's fields (the truth): with it, the loop's own error —
+advection and projection — shows alone.
+
+Force models are the pyfuncs of ``results/models/{model}/`` (``dozerlab.learn.pyfunc``); they
+read the last ``learn.history`` rows of fields.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from dozerlab.runtime import DozerlabError
+
+#: The dynamics-model name that replays the point's own NDEM store.
+REPLAY = "replay"
+
+
+class FieldModel(Protocol):
+    """What the loop asks of a field-evolution model."""
+
+    name: str
+    history: int
+    horizon: int
+
+    def predict(
+        self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray, row: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Fields of rows row+1 … row+m from rows row-H+1 … row (one run, no batch axis).
+
+        velocity (H, Nx, Ny, Nz, 3) m/s, density (H, Nx, Ny, Nz) kg/m³, blade_velocity (H+m, 3)
+        m/s → velocity (m, Nx, Ny, Nz, 3), density (m, Nx, Ny, Nz).
+        """
+        ...
+
+
+class PyfuncFieldModel:
+    """A field-evolution model loaded from an MLflow pyfunc directory."""
+
+    def __init__(self, path: str | Path, grid: tuple[int, int, int]) -> None:
+        import mlflow
+
+        path = Path(path)
+        if not (path / "MLmodel").is_file():
+            raise DozerlabError(f"not an MLflow model directory (no MLmodel): {path}")
+        self.model = mlflow.pyfunc.load_model(str(path))
+        meta = self.model.metadata.metadata or {}
+        missing = [k for k in ("history", "horizon") if k not in meta]
+        if missing:
+            raise DozerlabError(f"{path}: the model's MLflow metadata lacks {missing}")
+        self.name = path.name
+        self.history = int(meta["history"])
+        self.horizon = int(meta["horizon"])
+        self.grid = grid
+
+    def predict(
+        self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray, row: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        out = self.model.predict(
+            {
+                "velocity": np.ascontiguousarray(velocity[None], dtype=np.float32),
+                "density": np.ascontiguousarray(density[None], dtype=np.float32),
+                "blade_velocity": np.ascontiguousarray(blade_velocity[None], dtype=np.float32),
+            }
+        )
+        v, rho = np.asarray(out["velocity"]), np.asarray(out["density"])
+        m = self.horizon
+        if v.shape != (1, m, *self.grid, 3) or rho.shape != (1, m, *self.grid):
+            raise DozerlabError(
+                f"dynamics model {self.name} returned velocity {v.shape} and density {rho.shape}; "
+                f"expected (1, {m}, {', '.join(map(str, self.grid))}[, 3]) (sampling.bins)"
+            )
+        return v[0], rho[0]
+
+
+class ReplayFieldModel:
+    """The fields of a stored run, as if predicted: rows row+1 … row+m of the store.
+
+    Rows past the store's end repeat its last row.
+    """
+
+    def __init__(self, store: str | Path, *, history: int = 1, horizon: int = 1) -> None:
+        from dozerlab.learn.data import load_store
+
+        data = load_store(store)
+        self.name = REPLAY
+        self.history = int(history)
+        self.horizon = int(horizon)
+        self.velocity = data.velocity
+        self.density = data.density
+        self.grid = data.grid
+
+    def predict(
+        self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray, row: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        last = self.density.shape[0] - 1
+        rows = np.minimum(np.arange(row + 1, row + 1 + self.horizon), last)
+        return self.velocity[rows], self.density[rows]
+
+
+class ForcePredictor:
+    """A trained force model (``results/models/{model}/``) through its MLflow pyfunc.
+
+    Attributes: ``history`` (rows of fields it reads), ``name``.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        import mlflow
+
+        path = Path(path)
+        meta_path = path / "artifacts" / "meta.json"
+        if not meta_path.is_file():
+            raise DozerlabError(f"not a dozerlab force model directory (no {meta_path})")
+        self.history = int(json.loads(meta_path.read_text()).get("history", 1))
+        self.model = mlflow.pyfunc.load_model(str(path))
+        self.name = path.name
+
+    def predict(
+        self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Force (3,) N and torque (3,) N·m of the last of the given consecutive rows (T, …)."""
+        k = min(self.history, density.shape[0])
+        out = self.model.predict(
+            {
+                "velocity": np.ascontiguousarray(velocity[-k:], dtype=np.float32),
+                "density": np.ascontiguousarray(density[-k:], dtype=np.float32),
+                "blade_velocity": np.ascontiguousarray(blade_velocity[-k:], dtype=np.float32),
+            }
+        )
+        row = np.asarray(out, dtype=np.float64)[-1]
+        return row[:3], row[3:6]
+
+
+def load_field_model(
+    name_or_path: str | Path, grid: tuple[int, int, int], ndem_store: str | Path | None = None
+) -> Any:
+    """``replay`` (needs ``ndem_store``) or an MLflow pyfunc directory of a dynamics model."""
+    if str(name_or_path) == REPLAY:
+        if ndem_store is None:
+            raise DozerlabError("the replay field model needs the point's NDEM store (--ndem)")
+        return ReplayFieldModel(ndem_store)
+    return PyfuncFieldModel(name_or_path, grid)

@@ -1,0 +1,149 @@
+"""Figures of a reduced run next to its NDEM run: force, field errors, bed profile, animation.
+
+The animation puts the two runs side by side, frame by frame: the middle y-slice of each store
+(density as a heat map, in-plane velocity relative to the blade as arrows, as
+``dozerlab plot-fields`` draws it) and, beneath, the bed's surface in the sampling volume of both
+runs (per x, the height of the highest bin holding more than a third of the solid density,
+averaged over y).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+from matplotlib.figure import Figure
+
+from dozerlab.fields.plots import _density_max, _Slice
+from dozerlab.runtime import atomic_output
+
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    return Path(path)
+
+
+def _title(m: Mapping) -> str:
+    return f"{m['scenario']}, v = {m['speed']} m/s, d = {m['depth']} m — {m['dynamics_model']}"
+
+
+def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
+    """Pushing force (x) and |F| of both runs over time; the NDEM warm-up shaded."""
+    fig = Figure(figsize=(9, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    t, warm = series["time"], int(series["warmup"])
+    for key, style, label in (("force_ndem", "k-", "NDEM"), ("force_reduced", "C3-", "reduced")):
+        ax.plot(t, series[key][:, 0], style, lw=1.2, label=f"{label} force x")
+        ax.plot(
+            t, np.linalg.norm(series[key], axis=1), style, lw=0.6, alpha=0.5, label=f"{label} |F|"
+        )
+    if warm:
+        ax.axvspan(t[0], t[warm - 1], color="0.85", label="NDEM warm-up")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("force on the blade (N)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=3)
+    ax.set_title(
+        f"{_title(metrics)}: force x rel. RMSE {metrics['force_x_rel_rmse']:.1%}", fontsize=10
+    )
+    return _save(fig, path)
+
+
+def plot_errors(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
+    """Relative L2 of the velocity (mass-weighted) and density fields over time."""
+    fig = Figure(figsize=(9, 4), layout="constrained")
+    ax = fig.add_subplot()
+    ax.plot(series["time"], series["velocity_error"], label="velocity (mass-weighted)")
+    ax.plot(series["time"], series["density_error"], label="density")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("relative L2 vs NDEM")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(_title(metrics), fontsize=10)
+    return _save(fig, path)
+
+
+def plot_height(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
+    """The bed's height profile (mean over y) before and after the pass, both runs."""
+    fig = Figure(figsize=(9, 4), layout="constrained")
+    ax = fig.add_subplot()
+    x = series["height_x"]
+    ax.plot(x, series["height_bed"], color="0.6", label="bed before")
+    ax.plot(x, series["height_ndem"], "k", label="NDEM after")
+    ax.plot(x, series["height_reduced"], "C3--", label="reduced after")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("bed height, mean over y (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(
+        f"{_title(metrics)}: height accuracy {metrics['height_accuracy']:.1%}", fontsize=10
+    )
+    return _save(fig, path)
+
+
+def surface(ds: xr.Dataset, step: int, solid: float) -> np.ndarray:
+    """Height (m, blade frame) of the material's top per x bin at row ``step``, (Nx,)."""
+    rho = ds["density"].isel(time=step).values  # (Nx, Ny, Nz)
+    z = ds["z"].values
+    dz = float(z[1] - z[0]) if z.size > 1 else 0.0
+    full = rho > solid / 3
+    top = np.where(
+        full.any(axis=2), z[np.argmax(np.cumsum(full, axis=2), axis=2)] + dz / 2, z[0] - dz / 2
+    )
+    return top.mean(axis=1)
+
+
+def animate_pair(
+    ndem: xr.Dataset, reduced: xr.Dataset, path: str | Path, *, frames: int = 40, fps: int = 6
+) -> Path:
+    """A GIF of NDEM (left) next to the reduced run (right), ``frames`` rows spread over the run."""
+    from matplotlib.animation import PillowWriter
+
+    n = ndem.sizes["time"]
+    steps = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
+    vmax = max(_density_max(ndem), _density_max(reduced))
+    fig = Figure(figsize=(13, 7))
+    top, bottom = fig.subfigures(2, 1, height_ratios=[3, 1.4])
+    left, right = top.subfigures(1, 2)
+    views = [_Slice(left, ndem, vmax), _Slice(right, reduced, vmax)]
+    ax = bottom.add_subplot()
+    x = ndem["x"].values
+    (line_n,) = ax.plot(x, np.zeros_like(x), "k-", label="NDEM")
+    (line_r,) = ax.plot(x, np.zeros_like(x), "C3--", label="reduced")
+    ax.set_xlim(views[0].ax.get_xlim())
+    z = ndem["z"].values
+    ax.set_ylim(z[0] - (z[1] - z[0]), z[-1] + (z[1] - z[0]))
+    ax.set_xlabel("x in front of the blade (m)")
+    ax.set_ylabel("surface z (m)")
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(alpha=0.3)
+    warm = int(reduced.attrs.get("warmup_rows", 0))
+
+    def show(s: int) -> None:
+        for view, name in zip(views, ("NDEM", "reduced"), strict=True):
+            view.show(s)
+            phase = " (NDEM warm-up)" if name == "reduced" and s < warm else ""
+            view.ax.set_title(
+                f"{name}{phase}, t = {float(ndem['time'].values[s]):.2f} s", fontsize=9
+            )
+        line_n.set_ydata(surface(ndem, s, vmax))
+        line_r.set_ydata(surface(reduced, s, vmax))
+
+    show(int(steps[0]))
+    writer = PillowWriter(fps=fps)
+    with atomic_output(path) as tmp:
+        gif = tmp.with_name(tmp.name + ".gif")  # Pillow picks the format from the extension
+        try:
+            with writer.saving(fig, str(gif), dpi=60):  # ≈1 MB: the report embeds several
+                for s in steps:
+                    show(int(s))
+                    writer.grab_frame()
+            os.replace(gif, tmp)
+        finally:
+            gif.unlink(missing_ok=True)
+    return Path(path)

@@ -1,0 +1,33 @@
+"""The settled beds: every particle drawn to scale, the surface height seen from above and
+the settle log, drawn from the bed files by :func:`dozerlab.scenarios.plots.bed_figure`."""
+
+from __future__ import annotations
+
+from dozerlab.report import html
+from dozerlab.report.sections import Context
+from dozerlab.sweep import bed_path
+
+TITLE = "Beds"
+ORDER = 30
+
+
+def render(ctx: Context) -> str | None:
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.plots import bed_figure
+
+    figures = []
+    for scenario in dict.fromkeys(p.scenario for p in ctx.points):
+        path = bed_path(ctx.results, scenario)
+        if not path.is_file():
+            continue
+        bed = Bed.load(path)
+        with html.figure_style():
+            fig = bed_figure(bed)
+        figures.append(
+            html.figure(
+                fig,
+                f"The settled {scenario} bed, which every run of the scenario starts from: "
+                f"{bed.count} particles in a {bed.length:g} m × {bed.width:g} m box.",
+            )
+        )
+    return "\n".join(figures) or None

@@ -1,0 +1,195 @@
+"""The models on the held-out sweep points: an error chart, the comparison table and each
+model's validation (per-point errors, loss, parity and force-series plots), read from the
+JSON and PNGs that ``dozerlab validate`` wrote."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dozerlab.report import html
+from dozerlab.report.sections import Context
+from dozerlab.sweep import fmt_number, validation_path
+
+TITLE = "Models on held-out points"
+ORDER = 50
+
+#: The compared components (the blade's draft force, lift and pitch torque) and their units.
+COMPARED = {"force_x": "kN", "force_z": "kN", "torque_y": "kN·m"}
+GROUPS = ("interpolation", "extrapolation")
+#: SPEC §8: the thesis's CNN, about 10 % force error, measured on its training data only.
+THESIS_ERROR = 0.10
+
+
+def _pct(value: float | None) -> str:
+    return html.percent(value).removesuffix(" %")
+
+
+def _r2(value: float | None) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value:.3f}"
+
+
+def _kilo(value: float | None) -> str:
+    return "–" if value is None or not math.isfinite(value) else f"{value / 1000:.3g}"
+
+
+def _columns(first: str) -> list[html.Column]:
+    cols = [html.Column(first, text=True), html.Column("held-out group", text=True)]
+    for c, unit in COMPARED.items():
+        cols += [
+            html.Column(f"{c} rel. RMSE", "%", _pct),
+            html.Column(f"{c} RMSE", unit, _kilo),
+            html.Column(f"{c} R²", "", _r2),
+        ]
+    return cols
+
+
+def _cells(m: dict[str, dict[str, float]]) -> list[Any]:
+    return [m[c][k] for c in COMPARED for k in ("rel_rmse", "rmse", "r2")]
+
+
+def render(ctx: Context) -> str | None:
+    found = {}
+    for model in ctx.cfg["learn"]["models"]:
+        path = validation_path(ctx.results, model)
+        if path.is_file():
+            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
+    if not found:
+        return None
+    results = {m: doc for m, (_, doc) in found.items()}
+    rows = [
+        [m, g, *_cells(doc["groups"][g]["overall"])]
+        for m, doc in results.items()
+        for g in GROUPS
+        if g in doc["groups"]
+    ]
+    parts = [
+        html.paragraph(_best(results)),
+        html.figure(
+            error_chart(results),
+            "Relative RMSE of each model on the held-out points, per group (lower is better). "
+            "The dashed line is the thesis CNN's ≈ 10 % force error, measured on its training "
+            "data only.",
+        ),
+        html.table(_columns("model"), rows),
+        html.paragraph(
+            "Relative RMSE: the RMSE of the prediction over the RMS of the measured value, over "
+            "every step of the group's held-out runs; R² = 1 − SSE/SST. force_x is the draft "
+            "force (along the blade's motion), force_z the vertical force, torque_y the pitch "
+            "torque about the blade tip.",
+            "caption",
+        ),
+    ]
+    parts += [
+        html.details(f"{m}: per-point errors and plots", _model(m, path, doc), f"validation-{m}")
+        for m, (path, doc) in found.items()
+    ]
+    return "\n".join(parts)
+
+
+def _best(results: dict[str, dict[str, Any]]) -> str:
+    best = []
+    for g in GROUPS:
+        scores = {
+            m: doc["groups"][g]["overall"]["force_x"]["rel_rmse"]
+            for m, doc in results.items()
+            if g in doc["groups"]
+        }
+        scores = {m: v for m, v in scores.items() if math.isfinite(v)}
+        if scores:
+            m = min(scores, key=scores.__getitem__)
+            best.append(f"on the {g} points {m}, {html.percent(scores[m])}")
+    return "Lowest force_x relative RMSE: " + "; ".join(best) + "." if best else ""
+
+
+def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
+    train = doc.get("training") or {}
+    facts = [doc.get("summary", "")]
+    if train.get("epochs"):
+        facts.append(
+            "closed-form fit (no epochs)"
+            if train["epochs"] == 1
+            else f"{train['epochs']} epochs, best at epoch {train.get('best_epoch')}"
+        )
+    if train.get("seconds") is not None:
+        facts.append(f"training took {train['seconds']:.0f} s")
+    rows: list[list[Any]] = []
+    for g, data in doc["groups"].items():
+        n = len(data["points"])
+        rows.append([html.Group(f"{g}: {n} point{'s' if n != 1 else ''}")])
+        if n > 1:
+            rows.append(["all", g, *_cells(data["overall"])])
+        rows += [[_point(p), g, *_cells(p["metrics"])] for p in data["points"]]
+    plots = doc.get("plots") or {}
+    images = [
+        (plots.get("loss"), f"{model}: training and validation loss"),
+        (plots.get("parity"), f"{model}: predicted vs measured force on the held-out points"),
+        *(
+            (p, f"{model}, {label}: force over time")
+            for label, p in plots.get("series", {}).items()
+        ),
+    ]
+    figures = [
+        html.figure(path.parent / rel, caption)
+        for rel, caption in images
+        if rel and (path.parent / rel).is_file()
+    ]
+    return (
+        html.paragraph("; ".join(f for f in facts if f) + ".")
+        + html.table(_columns("point"), rows)
+        + "".join(figures)
+    )
+
+
+def _point(entry: dict[str, Any]) -> str:
+    """A validated point as the report spells it: ``hill, 1.25 m/s, 0.06 m``."""
+    p = entry.get("point") or {}
+    if {"scenario", "speed", "depth"} <= p.keys():
+        return f"{p['scenario']}, {fmt_number(p['speed'])} m/s, {fmt_number(p['depth'])} m"
+    return str(entry["name"])
+
+
+def error_chart(results: dict[str, dict[str, Any]]) -> Any:
+    """Grouped bars of the relative RMSE (%) per model and held-out group, one panel per
+    compared component."""
+    from matplotlib.figure import Figure
+
+    models = list(results)
+    groups = [g for g in GROUPS if any(g in d["groups"] for d in results.values())]
+    width = 0.8 / max(len(groups), 1)
+    with html.figure_style():
+        fig = Figure(figsize=(12, 4.4), layout="constrained")
+        axes = fig.subplots(1, len(COMPARED), sharey=True)
+        x = np.arange(len(models))
+        for ax, comp in zip(axes, COMPARED, strict=True):
+            for k, g in enumerate(groups):
+                values = [
+                    100 * d["groups"][g]["overall"][comp]["rel_rmse"]
+                    if g in d["groups"]
+                    else np.nan
+                    for d in results.values()
+                ]
+                bars = ax.bar(x + (k - (len(groups) - 1) / 2) * width, values, width, label=g)
+                ax.bar_label(
+                    bars, labels=[f"{v:.1f}" if np.isfinite(v) else "" for v in values], fontsize=10
+                )
+            if comp.startswith("force"):
+                ax.axhline(
+                    100 * THESIS_ERROR,
+                    color="0.3",
+                    ls="--",
+                    lw=1,
+                    label="thesis CNN ≈ 10 % (training data)" if comp == "force_x" else None,
+                )
+            ax.set_xticks(x, models)
+            ax.set_title(comp)
+            ax.grid(axis="y", alpha=0.3)
+            ax.margins(y=0.12)
+        axes[0].set_ylabel("relative RMSE (%)")
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), frameon=False)
+    return fig

@@ -1,0 +1,153 @@
+"""The sweep: a map of blade speed × cut depth with each point's mean blade force and role,
+and the table of every point's numbers."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from dozerlab.report import html
+from dozerlab.report.collect import PointSummary, summarize
+from dozerlab.report.sections import Context
+from dozerlab.sweep import fmt_number
+
+TITLE = "Sweep"
+ORDER = 20
+
+#: Marker of each role on the sweep map.
+MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s"}
+LABELS = {
+    "train": "training",
+    "interpolation": "held out, interpolation",
+    "extrapolation": "held out, extrapolation",
+}
+
+
+def _kn(newton: float | None) -> float | None:
+    return None if newton is None else newton / 1000.0
+
+
+COLUMNS = [
+    html.Column("scenario", text=True),
+    html.Column("role", text=True),
+    html.Column("speed", "m/s"),
+    html.Column("depth", "m"),
+    html.Column("particles"),
+    html.Column("solver steps"),
+    html.Column("simulated", "s", lambda v: "–" if v is None else f"{v:.2f}"),
+    html.Column("stepping wall time", "s", lambda v: "–" if v is None else f"{v:.1f}"),
+    html.Column("wall ÷ simulated time", "", lambda v: "–" if v is None else f"{v:.0f} ×"),
+    html.Column("mean |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
+    html.Column("peak |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
+]
+
+
+def _row(s: PointSummary) -> list[Any]:
+    p = s.point
+    return [
+        p.scenario,
+        LABELS[p.role],
+        fmt_number(p.speed),
+        fmt_number(p.depth),
+        s.particles,
+        s.steps,
+        s.simulated,
+        s.wall_time,
+        s.slowdown,
+        _kn(s.mean_force),
+        _kn(s.peak_force),
+    ]
+
+
+def render(ctx: Context) -> str | None:
+    summaries = [summarize(ctx.results, p) for p in ctx.points]
+    if not any(s.built for s in summaries):
+        return None
+    parts = [
+        html.figure(
+            sweep_map(summaries),
+            "Mean blade force magnitude |F| over each run, by blade speed and cut depth; the "
+            "held-out points (diamonds, squares) are never seen in training. Hollow grey: not "
+            "simulated yet.",
+        ),
+        html.table(COLUMNS, [_row(s) for s in summaries]),
+        html.paragraph(
+            "Stepping wall time: the simulation's stepping loop (solver, field sampling, store "
+            "writes) on one job's threads, without loading the bed or Snakemake's overhead; – for "
+            "stores written before it was recorded. Forces are the particles' contact forces on "
+            "the blade.",
+            "caption",
+        ),
+    ]
+    return "\n".join(parts)
+
+
+def sweep_map(summaries: list[PointSummary]) -> Any:
+    """A figure per scenario of the points on the speed (m/s) × depth (m) plane, coloured by
+    mean |F| (kN, one colour scale), marked by role and labelled with their force."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    scenarios = list(dict.fromkeys(s.point.scenario for s in summaries))
+    forces = [s.mean_force / 1000 for s in summaries if s.mean_force is not None]
+    norm = Normalize(min(forces), max(forces) if max(forces) > min(forces) else min(forces) + 1)
+    speeds = [s.point.speed for s in summaries]
+    depths = [s.point.depth for s in summaries]
+    pad_v = 0.12 * (max(speeds) - min(speeds) or 1.0)
+    pad_d = 0.12 * (max(depths) - min(depths) or 0.1)
+    with html.figure_style():
+        fig = Figure(figsize=(5.2 * len(scenarios) + 1.6, 4.6), layout="constrained")
+        axes = np.atleast_1d(fig.subplots(1, len(scenarios), sharey=True, squeeze=False)[0])
+        for ax, scenario in zip(axes, scenarios, strict=True):
+            for s in summaries:
+                p = s.point
+                if p.scenario != scenario:
+                    continue
+                style: dict[str, Any] = {"marker": MARKERS[p.role], "s": 170, "zorder": 3}
+                if s.mean_force is None:
+                    ax.scatter(p.speed, p.depth, facecolors="none", edgecolors="0.6", **style)
+                    continue
+                ax.scatter(
+                    p.speed,
+                    p.depth,
+                    c=[s.mean_force / 1000],
+                    cmap="viridis",
+                    norm=norm,
+                    edgecolors="k" if p.role == "train" else "crimson",
+                    linewidths=0.8 if p.role == "train" else 2.2,
+                    **style,
+                )
+                ax.annotate(
+                    f"{s.mean_force / 1000:.2f} kN",
+                    (p.speed, p.depth),
+                    xytext=(0, 12),
+                    textcoords="offset points",
+                    ha="center",
+                    fontsize=10,
+                )
+            ax.set(
+                xlim=(min(speeds) - pad_v, max(speeds) + pad_v),
+                ylim=(min(depths) - pad_d, max(depths) + 1.6 * pad_d),
+                xlabel="blade speed (m/s)",
+                title=f"{scenario}",
+            )
+            ax.grid(alpha=0.3)
+        axes[0].set_ylabel("cut depth (m)")
+        fig.colorbar(
+            ScalarMappable(norm=norm, cmap="viridis"), ax=list(axes), label="mean |F| (kN)"
+        )
+        handles = [
+            Line2D(
+                [], [], marker=MARKERS[r], ls="", ms=10, mfc="0.85", mec=c, mew=w, label=LABELS[r]
+            )
+            for r, c, w in (
+                ("train", "k", 0.8),
+                ("interpolation", "crimson", 2.2),
+                ("extrapolation", "crimson", 2.2),
+            )
+        ]
+        fig.legend(handles=handles, loc="outside lower center", ncols=3, frameon=False)
+    return fig

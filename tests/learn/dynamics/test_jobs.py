@@ -1,0 +1,151 @@
+import json
+
+import mlflow
+import numpy as np
+import pytest
+
+from dozerlab.cli import main
+from dozerlab.learn.data import load_store
+from dozerlab.learn.dynamics import pyfunc
+
+
+@pytest.fixture(scope="module")
+def tracking(tmp_path_factory):
+    """One SQLite tracking store for the module (creating its tables takes seconds)."""
+    root = tmp_path_factory.mktemp("tracking")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
+        mp.setenv("DOZERLAB_MLFLOW", "1")
+        mp.delenv("DOZERLAB_PARENT_RUN_ID", raising=False)
+        yield root
+
+
+CONFIG = json.dumps(
+    {
+        "learn": {"validation_block": 5},
+        "dynamics": {"epochs": 1, "samples_per_epoch": 8, "rollout_steps": 30, "rollout_starts": 2},
+    }
+)
+
+
+def test_cli_trains_validates_and_logs_to_mlflow(tracking, store_files, capsys):
+    train = [str(p) for p in store_files["train"]]
+    out = tracking / "results" / "dynamics" / "ridge"
+    assert (
+        main(
+            [
+                "train-dynamics",
+                "--model",
+                "ridge",
+                "--train",
+                *train,
+                "--config",
+                CONFIG,
+                "--out",
+                str(out),
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
+    js = tracking / "results" / "dynamics" / "ridge.json"
+    held = [
+        "--interpolation",
+        str(store_files["interpolation"][0]),
+        "--extrapolation",
+        str(store_files["extrapolation"][0]),
+    ]
+    assert (
+        main(
+            ["validate-dynamics", "--model", str(out), *held, "--out", str(js), "--config", CONFIG]
+        )
+        == 0
+    )
+    assert "interpolation velocity error one-step" in capsys.readouterr().out
+    result = json.loads(js.read_text())
+    assert set(result["groups"]) == {"interpolation", "extrapolation"}
+    o = result["overall"]
+    assert set(o["rollout_at"]) == {"10", "50", "100"} and o["rollout_at"]["100"]["steps"] <= 30
+    assert len(o["rollout"]["velocity"]) == len(o["rollout"]["mass_ratio"]) <= 30
+    assert 0 <= o["one_step"]["velocity"] < 1 and o["mass"]["max_abs_error"] >= 0
+    for png in [result["plots"]["rollout"], *result["plots"]["slices"].values()]:
+        assert (js.parent / png).stat().st_size > 1000
+
+    runs = mlflow.search_runs(experiment_names=["dozerlab"], filter_string="tags.model = 'ridge'")
+    assert sorted(runs["tags.rule"]) == ["train_dynamics", "validate_dynamics"]
+    trained = runs[runs["tags.rule"] == "train_dynamics"].iloc[0]
+    assert trained["metrics.train_seconds"] > 0 and trained["params.dynamics.history"] == "2"
+    logged = mlflow.pyfunc.load_model(f"runs:/{trained['run_id']}/model")
+    s = load_store(store_files["interpolation"][0])
+    inputs = {
+        "velocity": s.velocity[None, :2],
+        "density": s.density[None, :2],
+        "blade_velocity": s.blade_velocity[None, :3],
+    }
+    model, _ = pyfunc.load(out)
+    np.testing.assert_allclose(
+        logged.predict(inputs)["density"],
+        pyfunc.predict_arrays(model, inputs)["density"],
+        rtol=1e-5,
+    )
+
+
+def test_training_points_and_other_grids_are_refused(tracking, store_files, capsys):
+    train = [str(p) for p in store_files["train"]]
+    out = tracking / "persistence"
+    assert (
+        main(
+            [
+                "train-dynamics",
+                "--model",
+                "persistence",
+                "--train",
+                *train,
+                "--config",
+                CONFIG,
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    capsys.readouterr()
+    bad = tracking / "bad.json"
+    assert (
+        main(
+            [
+                "validate-dynamics",
+                "--model",
+                str(out),
+                "--interpolation",
+                train[0],
+                "--out",
+                str(bad),
+                "--config",
+                CONFIG,
+            ]
+        )
+        == 2
+    )
+    assert "trained on" in capsys.readouterr().err
+    other = str(store_files["other_grid"][0])
+    assert (
+        main(
+            [
+                "validate-dynamics",
+                "--model",
+                str(out),
+                "--extrapolation",
+                other,
+                "--out",
+                str(bad),
+                "--config",
+                CONFIG,
+            ]
+        )
+        == 2
+    )
+    assert "grid" in capsys.readouterr().err
+    assert not bad.exists()

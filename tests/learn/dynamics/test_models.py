@@ -1,0 +1,86 @@
+import numpy as np
+import pytest
+import torch
+
+from dozerlab.config import load_config
+from dozerlab.learn.dynamics.metrics import rollout
+from dozerlab.learn.dynamics.models import DynamicsModel
+from dozerlab.learn.dynamics.train import train_dynamics
+from dozerlab.runtime import DozerlabError
+
+from .helpers import BIN, DT, GRID, translating
+
+
+def config(**dynamics):
+    return load_config(
+        {
+            "mlflow": {"enabled": False},
+            "learn": {"validation_block": 5},
+            "dynamics": {"epochs": 6, "samples_per_epoch": 64, "learning_rate": 3e-3, **dynamics},
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def rule_stores():
+    return [translating(i) for i in range(4)], translating(9)
+
+
+def _rollout_error(model, store, steps):
+    """Relative L2 of density and mass-weighted velocity after ``steps`` rows, away from the
+    front bins where unknown material enters."""
+    r = rollout(model, store, steps, 3)
+    pred, true = r["fields"]
+    keep = slice(0, GRID[0] - steps - 1)
+    rho_err = np.linalg.norm(pred[:, -1, keep] - true[:, -1, keep]) / np.linalg.norm(
+        true[:, -1, keep]
+    )
+    return rho_err, r
+
+
+@pytest.mark.parametrize(("kind", "tol", "gain"), [("ridge", 0.01, 5), ("unet", 0.08, 2)])
+def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, rule_stores):
+    train, held = rule_stores
+    torch.manual_seed(0)
+    result = train_dynamics(kind, train, config(), progress=False)
+    model = result.model
+    persistence = DynamicsModel("persistence", GRID, 2, 1, DT, BIN)
+    err, _ = _rollout_error(model, held, 4)
+    base, _ = _rollout_error(persistence, held, 4)
+    assert err < tol, (kind, err)
+    assert base > 0.3
+    # the decay is learned, not in the advection the models start from
+    advection_only = DynamicsModel(kind, GRID, 2, 1, DT, BIN)
+    advection_only.load_state_dict({**model.state_dict(), **_zero_net(model)})
+    assert _rollout_error(advection_only, held, 4)[0] > gain * err
+
+
+def _zero_net(model):
+    return {k: torch.zeros_like(v) for k, v in model.state_dict().items() if k.startswith("net.")}
+
+
+def test_persistence_is_exact_on_a_steady_field():
+    from .helpers import steady
+
+    s = steady()
+    model = DynamicsModel("persistence", GRID, 2, 3, DT, BIN)
+    v, rho = model(
+        torch.from_numpy(s.velocity[None, :2]),
+        torch.from_numpy(s.density[None, :2]),
+        torch.from_numpy(s.blade_velocity[None, :5]),
+    )
+    assert v.shape == (1, 3, *GRID, 3) and rho.shape == (1, 3, *GRID)
+    np.testing.assert_array_equal(rho[0].numpy(), s.density[2:5])
+    r = rollout(model, s, 15, 2)
+    assert (r["sums"][:, [0, 2]] == 0).all() and (r["mass"] == r["mass_true"]).all()
+
+
+def test_wrong_shapes_are_refused_with_the_expected_ones():
+    model = DynamicsModel("ridge", GRID, 2, 1, DT, BIN)
+    v, rho, vb = torch.zeros(1, 2, *GRID, 3), torch.zeros(1, 2, *GRID), torch.zeros(1, 3, 3)
+    with pytest.raises(
+        DozerlabError, match=r"'blade_velocity' has shape \(1, 2, 3\), expected \(1, 3, 3\)"
+    ):
+        model(v, rho, vb[:, :2])
+    with pytest.raises(DozerlabError, match="history = 2"):
+        model(v[:, :1], rho[:, :1], vb)
