@@ -3,8 +3,6 @@ stopping on the validation block, or the closed-form ridge solution for ``linear
 
 from __future__ import annotations
 
-import copy
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -15,7 +13,13 @@ import torch
 from tqdm import tqdm
 
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
-from dozerlab.learn.fitting import TrainingDiverged, device_for, guard, solve_ridge
+from dozerlab.learn.fitting import (
+    EarlyStopping,
+    TrainingDiverged,
+    device_for,
+    guard,
+    solve_ridge,
+)
 from dozerlab.learn.models import TARGET_PARITY, ForceModel, channel_parity
 
 __all__ = ["TrainResult", "TrainingDiverged", "device_for", "train_model"]
@@ -25,9 +29,9 @@ EpochCallback = Callable[[int, float, float], None]
 
 @dataclass
 class TrainResult:
-    """A trained model with its loss history (normalised MSE per epoch) and timing."""
+    """A trained model with its loss history (per epoch) and timing (s)."""
 
-    model: ForceModel
+    model: torch.nn.Module
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
     best_epoch: int = 0
@@ -224,7 +228,7 @@ def _fit_gradient(
         opt, factor=0.5, patience=max(1, learn["patience"] // 3)
     )
     gen = np.random.default_rng(seed)
-    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    stop = EarlyStopping(model, learn["patience"], on_epoch)
     bar = tqdm(
         range(learn["epochs"]), desc=f"train {model.kind}", unit="epoch", disable=not progress
     )
@@ -248,21 +252,13 @@ def _fit_gradient(
             total, count = total + value * y.shape[0], count + y.shape[0]
         val_loss = mean_loss(model, val)
         _guard(val_loss, f"the validation loss at epoch {epoch}")
-        result.train_loss.append(total / count)
-        result.val_loss.append(val_loss)
         sched.step(val_loss)
         bar.set_postfix(train=f"{total / count:.4f}", val=f"{val_loss:.4f}")
-        if on_epoch:
-            on_epoch(epoch, total / count, val_loss)
-        if val_loss < best:
-            best, best_state, waited, result.best_epoch = (
-                val_loss,
-                copy.deepcopy(model.state_dict()),
-                0,
-                epoch,
-            )
-        else:
-            waited += 1
-            if waited >= learn["patience"]:
-                break
-    model.load_state_dict(best_state)
+        if stop.end_epoch(epoch, total / count, val_loss):
+            break
+    stop.restore()
+    result.train_loss, result.val_loss, result.best_epoch = (
+        stop.train_loss,
+        stop.val_loss,
+        stop.best_epoch,
+    )

@@ -8,11 +8,7 @@ a convention, not an observation), as the velocity metric does (:mod:`.metrics`)
 
 from __future__ import annotations
 
-import copy
-import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,22 +18,8 @@ from tqdm import tqdm
 from dozerlab.learn.data import StoreData, split_train_validation
 from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
 from dozerlab.learn.dynamics.windows import WindowBatches, frame_of, windows
-from dozerlab.learn.fitting import NormalEquations, device_for, guard
-
-EpochCallback = Callable[[int, float, float], None]
-
-
-@dataclass
-class DynamicsTrainResult:
-    """A trained evolution model with its loss history and timing (s)."""
-
-    model: DynamicsModel
-    train_loss: list[float] = field(default_factory=list)
-    val_loss: list[float] = field(default_factory=list)
-    best_epoch: int = 0
-    samples: dict[str, int] = field(default_factory=dict)
-    seconds: float = 0.0
-    model_uri: str = ""
+from dozerlab.learn.fitting import EarlyStopping, NormalEquations, device_for, guard
+from dozerlab.learn.train import EpochCallback, TrainResult
 
 
 def _chunks(n: int, size: int) -> list[np.ndarray]:
@@ -182,7 +164,7 @@ def train_dynamics(
     device: str | None = None,
     on_epoch: EpochCallback | None = None,
     progress: bool = True,
-) -> DynamicsTrainResult:
+) -> TrainResult:
     """Train evolution model ``kind`` on ``stores`` (the training points) with
     ``config['dynamics']``; early stopping on the blocks of ``learn.validation_fraction`` /
     ``learn.validation_block`` (those of the force models)."""
@@ -197,7 +179,7 @@ def train_dynamics(
     )
     train, val = WindowBatches(train_s, dev), WindowBatches(val_s, dev)
     model = DynamicsModel(kind, stores[0].grid, h, m, row_dt, bin_size, dyn["width"]).to(dev)
-    result = DynamicsTrainResult(model, samples={"train": len(train), "validation": len(val)})
+    result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()
     rho_scale = fit_normalization(model, train)
     if kind == "ridge":
@@ -235,7 +217,7 @@ def _fit_unet(
     dyn: dict[str, Any],
     seed: int,
     rho_scale: float,
-    result: DynamicsTrainResult,
+    result: TrainResult,
     on_epoch: EpochCallback | None,
     progress: bool,
 ) -> None:
@@ -243,7 +225,7 @@ def _fit_unet(
     opt = torch.optim.Adam(model.parameters(), lr=dyn["learning_rate"])
     gen = np.random.default_rng(seed)
     tgen = torch.Generator(device=train.device).manual_seed(seed)
-    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    stop = EarlyStopping(model, dyn["patience"], on_epoch)
     bar = tqdm(
         range(dyn["epochs"]), desc="train unet (dynamics)", unit="epoch", disable=not progress
     )
@@ -263,20 +245,12 @@ def _fit_unet(
         tr = total / len(order)
         va = _mean_loss(model, val, calls, rho_scale)
         guard(va, f"the validation rollout loss at epoch {epoch}", "lower dynamics.learning_rate")
-        result.train_loss.append(tr)
-        result.val_loss.append(va)
         bar.set_postfix(train=f"{tr:.4f}", val=f"{va:.4f}")
-        if on_epoch:
-            on_epoch(epoch, tr, va)
-        if va < best:
-            best, best_state, waited, result.best_epoch = (
-                va,
-                copy.deepcopy(model.state_dict()),
-                0,
-                epoch,
-            )
-        else:
-            waited += 1
-            if waited >= dyn["patience"]:
-                break
-    model.load_state_dict(best_state)
+        if stop.end_epoch(epoch, tr, va):
+            break
+    stop.restore()
+    result.train_loss, result.val_loss, result.best_epoch = (
+        stop.train_loss,
+        stop.val_loss,
+        stop.best_epoch,
+    )

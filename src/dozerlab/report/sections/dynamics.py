@@ -13,7 +13,8 @@ import numpy as np
 
 from dozerlab.report import html
 from dozerlab.report.sections import Context
-from dozerlab.sweep import dynamics_validation_path, fmt_number
+from dozerlab.report.sections.models import _point
+from dozerlab.sweep import dynamics_validation_path
 
 TITLE = "Field-evolution models on held-out points"
 ORDER = 60
@@ -163,13 +164,6 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         + html.table(columns, rows)
         + "".join(figures)
     )
-
-
-def _point(entry: dict[str, Any]) -> str:
-    p = entry.get("point") or {}
-    if {"scenario", "speed", "depth"} <= p.keys():
-        return f"{p['scenario']}, {fmt_number(p['speed'])} m/s, {fmt_number(p['depth'])} m"
-    return str(entry["name"])
 
 
 def rollout_chart(docs: dict[str, dict[str, Any]]) -> Any:
