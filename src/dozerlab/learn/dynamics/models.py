@@ -14,6 +14,7 @@ the whole model.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -135,6 +136,9 @@ class DynamicsModel(nn.Module):
             ("cond_mean", cond, 0.0),
             ("cond_std", cond, 1.0),
             ("res_std", FIELD_CHANNELS, 1.0),
+            ("v_lo", 3, -math.inf),
+            ("v_hi", 3, math.inf),
+            ("rho_hi", 1, math.inf),
         ):
             self.register_buffer(name, torch.full((n,), value))
         self.net: nn.Module | None = None
@@ -240,12 +244,14 @@ class DynamicsModel(nn.Module):
     def correct(
         self, base: tuple[torch.Tensor, torch.Tensor], residual: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Base fields plus the normalised residual (B, 4m, X, Y, Z); density kept >= 0."""
+        """Base fields plus the normalised residual (B, 4m, X, Y, Z), kept within the range of
+        the training fields (density in [0, ρ_max], each velocity component in [min, max]): a
+        rollout fed its own output stays bounded."""
         b, m = residual.shape[0], self.horizon
         r = (
             residual.view(b, m, FIELD_CHANNELS, *self.grid)
             * self.res_std[None, None, :, None, None, None]
         )
-        density = (base[1] + r[:, :, 0]).clamp_min(0)
+        density = torch.minimum((base[1] + r[:, :, 0]).clamp_min(0), self.rho_hi)
         velocity = base[0] + r[:, :, 1:].permute(0, 1, 3, 4, 5, 2)
-        return velocity, density
+        return torch.maximum(torch.minimum(velocity, self.v_hi), self.v_lo), density
