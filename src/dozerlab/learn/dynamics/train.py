@@ -60,9 +60,10 @@ def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 51
                 ]
             )
         )
-        v_lo = torch.minimum(v_lo, v_true.flatten(0, -2).min(0).values.cpu())
-        v_hi = torch.maximum(v_hi, v_true.flatten(0, -2).max(0).values.cpu())
-        rho_hi = torch.maximum(rho_hi, rho_true.max().cpu().view(1))
+        for a, b in ((v, rho), (v_true, rho_true)):
+            v_lo = torch.minimum(v_lo, a.flatten(0, -2).min(0).values.cpu())
+            v_hi = torch.maximum(v_hi, a.flatten(0, -2).max(0).values.cpu())
+            rho_hi = torch.maximum(rho_hi, b.max().cpu().view(1))
         rho_sum += float(rho_true.double().sum())
         count += rho_true.numel()
     x, c, r = torch.cat(xs, 1), torch.cat(cs), torch.stack(res).sum(0)
@@ -77,7 +78,14 @@ def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 51
     model.cond_std.copy_(std(c, 0))
     spread = torch.cat([(r[0] / r[5]).sqrt().view(1), (r[1:4] / r[4].clamp_min(1e-30)).sqrt()])
     model.res_std.copy_(torch.where(spread > 0, spread, torch.ones_like(spread)))
-    for buffer, value in ((model.v_lo, v_lo), (model.v_hi, v_hi), (model.rho_hi, rho_hi)):
+    # a tenth of the span as headroom: held-out runs may reach a little beyond the training ones
+    margin = 0.1 * (v_hi - v_lo)
+    bounds = (
+        (model.v_lo, v_lo - margin),
+        (model.v_hi, v_hi + margin),
+        (model.rho_hi, 1.1 * rho_hi),
+    )
+    for buffer, value in bounds:
         buffer.copy_(value)
     return rho_sum / max(count, 1) or 1.0
 
