@@ -31,7 +31,7 @@ EpochCallback = Callable[[int, float, float], None]
 class TrainResult:
     """A trained model with its loss history (per epoch) and timing (s)."""
 
-    model: torch.nn.Module
+    model: Any  # a ForceModel, or a DynamicsModel from learn.dynamics.train
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
     best_epoch: int = 0

@@ -85,6 +85,7 @@ class EvolutionUNet(nn.Module):
         self.d0 = _conv(3 * w, w)
         self.out = nn.Conv3d(w, outputs, 1)
         nn.init.zeros_(self.out.weight)
+        assert self.out.bias is not None
         nn.init.zeros_(self.out.bias)
 
     def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
@@ -108,6 +109,16 @@ class DynamicsModel(nn.Module):
     those of the training stores: the frame shift per row depends on them.
     """
 
+    coords: torch.Tensor
+    chan_mean: torch.Tensor
+    chan_std: torch.Tensor
+    cond_mean: torch.Tensor
+    cond_std: torch.Tensor
+    res_std: torch.Tensor
+    v_lo: torch.Tensor
+    v_hi: torch.Tensor
+    rho_hi: torch.Tensor
+
     def __init__(
         self,
         kind: str,
@@ -123,9 +134,15 @@ class DynamicsModel(nn.Module):
             raise ValueError(f"dynamics model must be one of {list(DYNAMICS_MODELS)}, got {kind!r}")
         if history < 1 or horizon < 1:
             raise ValueError(f"history and horizon must be >= 1, got {history} and {horizon}")
-        self.kind, self.grid = kind, tuple(int(n) for n in grid)
+        self.kind = kind
+        self.grid: tuple[int, int, int] = (int(grid[0]), int(grid[1]), int(grid[2]))
         self.history, self.horizon, self.width = int(history), int(horizon), int(width)
-        self.row_dt, self.bin_size = float(row_dt), tuple(float(b) for b in bin_size)
+        self.row_dt = float(row_dt)
+        self.bin_size: tuple[float, float, float] = (
+            float(bin_size[0]),
+            float(bin_size[1]),
+            float(bin_size[2]),
+        )
         channels = FIELD_CHANNELS * (self.history + self.horizon)
         cond = 3 * (self.history + self.horizon)
         outputs = FIELD_CHANNELS * self.horizon
