@@ -11,18 +11,6 @@ from dozerlab.learn.jobs import train_job
 from dozerlab.runtime import DozerlabError
 
 
-@pytest.fixture(scope="module")
-def tracking(tmp_path_factory):
-    """One SQLite tracking store for the module (creating its tables takes seconds)."""
-    root = tmp_path_factory.mktemp("tracking")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(root)
-        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
-        mp.setenv("DOZERLAB_MLFLOW", "1")
-        mp.delenv("DOZERLAB_PARENT_RUN_ID", raising=False)
-        yield root
-
-
 def _inputs(store):
     return {
         "velocity": store.velocity,

@@ -7,6 +7,15 @@ import argparse
 from dozerlab.learn.names import MODEL_NAMES
 
 
+def add_held_out(p: argparse.ArgumentParser) -> None:
+    """The held-out stores' options of a validation command."""
+    for name, what in (
+        ("interpolation", "held-out stores inside the training ranges"),
+        ("extrapolation", "held-out stores outside them"),
+    ):
+        p.add_argument(f"--{name}", nargs="*", default=[], metavar="F.zarr", help=what)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("train", help="train one force/torque model on field stores")
     p.add_argument("--model", required=True, choices=MODEL_NAMES, help="model name")
@@ -27,20 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("validate", help="metrics and plots of a model on held-out sweep points")
     p.add_argument("--model", required=True, help="model directory (results/models/NAME)")
-    p.add_argument(
-        "--interpolation",
-        nargs="*",
-        default=[],
-        metavar="F.zarr",
-        help="held-out stores inside the training ranges",
-    )
-    p.add_argument(
-        "--extrapolation",
-        nargs="*",
-        default=[],
-        metavar="F.zarr",
-        help="held-out stores outside them",
-    )
+    add_held_out(p)
     p.add_argument(
         "--out",
         required=True,

@@ -3,7 +3,9 @@ solvers (one on a design matrix held whole, one on normal equations accumulated 
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Callable
 
 import torch
 
@@ -96,3 +98,36 @@ class NormalEquations:
         w = torch.linalg.solve(a, cxy * live[:, None] / xs[:, None]) / xs[:, None]
         guard(float(w.abs().max()), "the ridge solution", "raise the ridge alpha")
         return w, ym - xm @ w
+
+
+class EarlyStopping:
+    """The epochs' losses, the model's best state by validation loss, and when to stop:
+    ``end_epoch`` records an epoch (and passes it to ``on_epoch``) and says whether ``patience``
+    epochs in a row brought no better validation loss; ``restore`` loads the best state."""
+
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        patience: int,
+        on_epoch: Callable[[int, float, float], None] | None = None,
+    ) -> None:
+        self.model, self.patience, self.on_epoch = model, patience, on_epoch
+        self.train_loss: list[float] = []
+        self.val_loss: list[float] = []
+        self.best, self.best_epoch, self.waited = math.inf, 0, 0
+        self.state = copy.deepcopy(model.state_dict())
+
+    def end_epoch(self, epoch: int, train_loss: float, val_loss: float) -> bool:
+        self.train_loss.append(train_loss)
+        self.val_loss.append(val_loss)
+        if self.on_epoch:
+            self.on_epoch(epoch, train_loss, val_loss)
+        if val_loss < self.best:
+            self.best, self.best_epoch, self.waited = val_loss, epoch, 0
+            self.state = copy.deepcopy(self.model.state_dict())
+            return False
+        self.waited += 1
+        return self.waited >= self.patience
+
+    def restore(self) -> None:
+        self.model.load_state_dict(self.state)

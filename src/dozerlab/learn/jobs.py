@@ -7,14 +7,58 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
-from dozerlab.learn.data import load_store, point_key
+from dozerlab.learn.data import StoreData, load_store, point_key
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
-from dozerlab.learn.train import TrainResult, train_model
+from dozerlab.learn.train import EpochCallback, TrainResult, train_model
 from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
 from dozerlab.runtime import atomic_output
+
+
+def training_meta(stores: list[StoreData], train: list[str | Path]) -> dict[str, Any]:
+    """What a trained model records of its training points (validation refuses them)."""
+    return {
+        "train_points": [s.point for s in stores],
+        "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
+        "train_sources": [str(Path(p).resolve()) for p in train],
+    }
+
+
+def result_meta(result: TrainResult) -> dict[str, Any]:
+    """A training's losses, best epoch, sample counts and time, for the model's metadata."""
+    return {
+        "train_loss": result.train_loss,
+        "val_loss": result.val_loss,
+        "best_epoch": result.best_epoch,
+        "samples": result.samples,
+        "seconds": result.seconds,
+    }
+
+
+def epoch_logger(run: Any, val_name: str) -> EpochCallback | None:
+    """An ``on_epoch`` callback logging ``train_loss`` and ``val_name`` to the active MLflow
+    run (None without a run)."""
+    if run is None:
+        return None
+    import mlflow
+
+    def log_epoch(epoch: int, tr: float, va: float) -> None:
+        mlflow.log_metrics({"train_loss": tr, val_name: va}, step=epoch)
+
+    return log_epoch
+
+
+def store_arrays(store: StoreData) -> dict[str, np.ndarray]:
+    """The store's per-row model inputs: velocity, density, blade_velocity."""
+    return {
+        "velocity": store.velocity,
+        "density": store.density,
+        "blade_velocity": store.blade_velocity,
+    }
 
 
 def train_job(
@@ -30,13 +74,7 @@ def train_job(
     import mlflow
 
     stores = [load_store(p) for p in train]
-    meta = {
-        "train_points": [s.point for s in stores],
-        "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
-        "train_sources": [str(Path(p).resolve()) for p in train],
-        "learn": config["learn"],
-        "seed": config.get("seed"),
-    }
+    meta = {**training_meta(stores, train), "learn": config["learn"], "seed": config.get("seed")}
     params = {
         "model": kind,
         "seed": config.get("seed"),
@@ -46,28 +84,13 @@ def train_job(
     with tracking.job_run(
         config, f"train {kind}", rule="train", tags={"model": kind}, params=params
     ) as run:
-        log_epoch = None
-        if run is not None:
-
-            def log_epoch(epoch: int, tr: float, va: float) -> None:
-                mlflow.log_metrics({"train_loss": tr, "val_loss": va}, step=epoch)
-
+        log_epoch = epoch_logger(run, "val_loss")
         result = train_model(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
         )
-        meta.update(
-            train_loss=result.train_loss,
-            val_loss=result.val_loss,
-            best_epoch=result.best_epoch,
-            samples=result.samples,
-            seconds=result.seconds,
-        )
+        meta.update(result_meta(result))
         model = result.model.cpu()
-        example = {
-            "velocity": stores[0].velocity,
-            "density": stores[0].density,
-            "blade_velocity": stores[0].blade_velocity,
-        }
+        example = store_arrays(stores[0])
         with atomic_output(out) as tmp:
             pyfunc.save(model, meta, tmp, example)
         if run is not None:

@@ -20,7 +20,7 @@ import contextlib
 import json
 import tempfile
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -147,13 +147,10 @@ def model_kwargs(
     model: ForceModel, meta: dict[str, Any], workdir: Path, example: dict[str, np.ndarray]
 ) -> dict[str, Any]:
     """Arguments shared by ``mlflow.pyfunc.save_model`` and ``log_model`` (files go to ``workdir``)."""
-    weights, meta_path = workdir / "weights.pt", workdir / "meta.json"
-    torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, weights)
-    meta_path.write_text(json.dumps({**meta, **model.spec()}, indent=1))
     return {
         # Models from code: loading runs this package's entry file instead of unpickling an object.
         "python_model": str(Path(__file__).with_name("pyfunc_entry.py")),
-        "artifacts": {"weights": str(weights), "meta": str(meta_path)},
+        "artifacts": write_artifacts(model, meta, workdir),
         "signature": signature(model.grid),
         "input_example": {
             k: np.ascontiguousarray(example[k][:1], dtype=np.float32) for k in INPUT_NAMES
@@ -162,28 +159,50 @@ def model_kwargs(
     }
 
 
+def write_artifacts(model: Any, meta: dict[str, Any], workdir: Path) -> dict[str, str]:
+    """``weights.pt`` (the state dict) and ``meta.json`` (``meta`` and ``model.spec()``) in
+    ``workdir``: a model directory's MLflow artifacts."""
+    weights, meta_path = workdir / "weights.pt", workdir / "meta.json"
+    torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, weights)
+    meta_path.write_text(json.dumps({**meta, **model.spec()}, indent=1))
+    return {"weights": str(weights), "meta": str(meta_path)}
+
+
+def read_artifacts(path: str | Path, what: str = "dozerlab model") -> tuple[dict[str, Any], Path]:
+    """The metadata and weights file of a saved model directory (FileNotFoundError if absent)."""
+    art = Path(path) / "artifacts"
+    if not (art / "meta.json").is_file() or not (art / "weights.pt").is_file():
+        raise FileNotFoundError(
+            f"not a {what} directory (no artifacts/meta.json, weights.pt): {path}"
+        )
+    return json.loads((art / "meta.json").read_text()), art / "weights.pt"
+
+
+def save_model(path: str | Path, kwargs: Callable[[Path], dict[str, Any]]) -> None:
+    """``mlflow.pyfunc.save_model`` at ``path`` with ``kwargs(workdir)`` (files made there)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        mlflow.pyfunc.save_model(path=str(path), **kwargs(Path(tmp)))
+
+
+def log_model(kwargs: Callable[[Path], dict[str, Any]]) -> Any:
+    """``mlflow.pyfunc.log_model`` to the active run as the model named ``model``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return mlflow.pyfunc.log_model(name="model", **kwargs(Path(tmp)))
+
+
 def save(
     model: ForceModel, meta: dict[str, Any], path: str | Path, example: dict[str, np.ndarray]
 ) -> None:
     """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        mlflow.pyfunc.save_model(path=str(path), **model_kwargs(model, meta, Path(tmp), example))
+    save_model(path, lambda tmp: model_kwargs(model, meta, tmp, example))
 
 
 def log(model: ForceModel, meta: dict[str, Any], example: dict[str, np.ndarray]) -> Any:
     """Log ``model`` to the active MLflow run as the model named ``model``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return mlflow.pyfunc.log_model(
-            name="model", **model_kwargs(model, meta, Path(tmp), example)
-        )
+    return log_model(lambda tmp: model_kwargs(model, meta, tmp, example))
 
 
 def load(path: str | Path) -> tuple[ForceModel, dict[str, Any]]:
     """Load a saved model directory directly (no MLflow runtime): the model and its metadata."""
-    art = Path(path) / "artifacts"
-    if not (art / "meta.json").is_file() or not (art / "weights.pt").is_file():
-        raise FileNotFoundError(
-            f"not a dozerlab model directory (no artifacts/meta.json, weights.pt): {path}"
-        )
-    meta = json.loads((art / "meta.json").read_text())
-    return build(meta, art / "weights.pt"), meta
+    meta, weights = read_artifacts(path)
+    return build(meta, weights), meta

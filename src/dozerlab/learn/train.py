@@ -3,10 +3,8 @@ stopping on the validation block, or the closed-form ridge solution for ``linear
 
 from __future__ import annotations
 
-import copy
-import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -15,8 +13,14 @@ import torch
 from tqdm import tqdm
 
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
-from dozerlab.learn.fitting import TrainingDiverged, device_for, guard, solve_ridge
-from dozerlab.learn.models import TARGET_PARITY, ForceModel, channel_parity
+from dozerlab.learn.fitting import (
+    EarlyStopping,
+    TrainingDiverged,
+    device_for,
+    guard,
+    solve_ridge,
+)
+from dozerlab.learn.models import TARGET_PARITY, ForceModel, LinearHead, channel_parity
 
 __all__ = ["TrainResult", "TrainingDiverged", "device_for", "train_model"]
 
@@ -25,9 +29,9 @@ EpochCallback = Callable[[int, float, float], None]
 
 @dataclass
 class TrainResult:
-    """A trained model with its loss history (normalised MSE per epoch) and timing."""
+    """A trained model with its loss history (per epoch) and timing (s)."""
 
-    model: ForceModel
+    model: Any  # a ForceModel, or a DynamicsModel from learn.dynamics.train
     train_loss: list[float] = field(default_factory=list)
     val_loss: list[float] = field(default_factory=list)
     best_epoch: int = 0
@@ -56,7 +60,9 @@ class Batches:
         cur = rows[:, -1]
         return self.velocity[rows], self.density[rows], self.blade_velocity[rows], self.target[cur]
 
-    def chunks(self, size: int):  # type: ignore[no-untyped-def]
+    def chunks(
+        self, size: int
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
         for start in range(0, len(self), size):
             yield self.get(np.arange(start, min(start + size, len(self))))
 
@@ -150,6 +156,8 @@ def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256)
     if alpha < 0:
         raise ValueError(f"learn.ridge_alpha must be >= 0, got {alpha}")
     head = model.backbone
+    if not isinstance(head, LinearHead):
+        raise TypeError(f"fit_ridge fits a LinearHead backbone, got {type(head).__name__}")
     rows: list[list[torch.Tensor]] = [[], []]
     ys = []
     for v, rho, vb, y in train.chunks(chunk):
@@ -224,7 +232,7 @@ def _fit_gradient(
         opt, factor=0.5, patience=max(1, learn["patience"] // 3)
     )
     gen = np.random.default_rng(seed)
-    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    stop = EarlyStopping(model, learn["patience"], on_epoch)
     bar = tqdm(
         range(learn["epochs"]), desc=f"train {model.kind}", unit="epoch", disable=not progress
     )
@@ -248,21 +256,13 @@ def _fit_gradient(
             total, count = total + value * y.shape[0], count + y.shape[0]
         val_loss = mean_loss(model, val)
         _guard(val_loss, f"the validation loss at epoch {epoch}")
-        result.train_loss.append(total / count)
-        result.val_loss.append(val_loss)
         sched.step(val_loss)
         bar.set_postfix(train=f"{total / count:.4f}", val=f"{val_loss:.4f}")
-        if on_epoch:
-            on_epoch(epoch, total / count, val_loss)
-        if val_loss < best:
-            best, best_state, waited, result.best_epoch = (
-                val_loss,
-                copy.deepcopy(model.state_dict()),
-                0,
-                epoch,
-            )
-        else:
-            waited += 1
-            if waited >= learn["patience"]:
-                break
-    model.load_state_dict(best_state)
+        if stop.end_epoch(epoch, total / count, val_loss):
+            break
+    stop.restore()
+    result.train_loss, result.val_loss, result.best_epoch = (
+        stop.train_loss,
+        stop.val_loss,
+        stop.best_epoch,
+    )

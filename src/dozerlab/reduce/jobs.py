@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,7 @@ from dozerlab.runtime import DozerlabError, atomic_output
 log = logging.getLogger(__name__)
 
 #: Per-role summary of the comparison: how each figure is aggregated over the points.
-AGGREGATE = {
+AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
     "height_accuracy": np.mean,
     "force_x_rel_rmse": np.mean,
     "velocity_rel_l2": np.mean,

@@ -108,7 +108,8 @@ def animate_pair(
     steps = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
     vmax = max(_density_max(ndem), _density_max(reduced))
     fig = Figure(figsize=(13, 7))
-    top, bottom = fig.subfigures(2, 1, height_ratios=[3, 1.4])
+    # subfigures(n, m) returns an array of n·m subfigures; matplotlib's stub says one
+    top, bottom = fig.subfigures(2, 1, height_ratios=[3, 1.4])  # type: ignore[misc]
     left, right = top.subfigures(1, 2)
     views = [_Slice(left, ndem, vmax), _Slice(right, reduced, vmax)]
     ax = bottom.add_subplot()

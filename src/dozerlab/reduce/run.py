@@ -142,6 +142,7 @@ def reduce_run(
                     k - 1,
                 )
                 t0 = times.add("field_inference", t0)
+            assert pred_v is not None and pred_rho is not None  # predicted at j == 0, k = warmup
             tip = traj.position[step_of[k]]
             st = state.step(pred_v[j], pred_rho[j], tip, every * dt, times)
             worst_overlap = max(worst_overlap, st.max_overlap)

@@ -237,7 +237,9 @@ class ReducedState:
         vs = np.zeros_like(x0)
         ins, bal = inside[sel], ballistic[sel]
         if ins.any():
-            vs[ins] = interpolate(velocity, xs[ins], lower, self.grid.bin_size, weight=density)
+            vs[ins] = interpolate(
+                velocity, xs[ins], lower, np.asarray(self.grid.bin_size), weight=density
+            )
         vs[bal] = self.v[sel[bal]] + h * self.gravity
         xs += h * vs
         t0 = times.add("advection", t0)

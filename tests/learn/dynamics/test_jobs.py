@@ -2,24 +2,10 @@ import json
 
 import mlflow
 import numpy as np
-import pytest
 
 from dozerlab.cli import main
 from dozerlab.learn.data import load_store
 from dozerlab.learn.dynamics import pyfunc
-
-
-@pytest.fixture(scope="module")
-def tracking(tmp_path_factory):
-    """One SQLite tracking store for the module (creating its tables takes seconds)."""
-    root = tmp_path_factory.mktemp("tracking")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(root)
-        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
-        mp.setenv("DOZERLAB_MLFLOW", "1")
-        mp.delenv("DOZERLAB_PARENT_RUN_ID", raising=False)
-        yield root
-
 
 CONFIG = json.dumps(
     {

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.learn.cli import add_held_out
+
 MODELS = ["persistence", "ridge", "unet"]
 
 
@@ -30,20 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="one-step and rollout errors of an evolution model on held-out points",
     )
     p.add_argument("--model", required=True, help="model directory (results/dynamics/NAME)")
-    p.add_argument(
-        "--interpolation",
-        nargs="*",
-        default=[],
-        metavar="F.zarr",
-        help="held-out stores inside the training ranges",
-    )
-    p.add_argument(
-        "--extrapolation",
-        nargs="*",
-        default=[],
-        metavar="F.zarr",
-        help="held-out stores outside them",
-    )
+    add_held_out(p)
     p.add_argument("--out", required=True, help="JSON to write (results/dynamics/NAME.json)")
     p.add_argument(
         "--plots", default=None, help="plot folder (default: plots/NAME beside the JSON)"

@@ -9,24 +9,18 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from dozerlab.learn.data import StoreData, check_grid, load_store, point_key
+from dozerlab.learn.data import StoreData, check_grid, load_store
 from dozerlab.learn.dynamics import plots, pyfunc
 from dozerlab.learn.dynamics.metrics import combine, evaluate_store, public
 from dozerlab.learn.dynamics.models import DynamicsModel
-from dozerlab.learn.dynamics.train import DynamicsTrainResult, train_dynamics
+from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.learn.dynamics.windows import frame_of
+from dozerlab.learn.jobs import epoch_logger, result_meta, store_arrays, training_meta
 from dozerlab.learn.plots import loss_curves
+from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
 from dozerlab.runtime import atomic_output
 from dozerlab.tracking import job_run
-
-
-def _arrays(store: StoreData) -> dict[str, Any]:
-    return {
-        "velocity": store.velocity,
-        "density": store.density,
-        "blade_velocity": store.blade_velocity,
-    }
 
 
 def train_dynamics_job(
@@ -36,7 +30,7 @@ def train_dynamics_job(
     out: str | Path,
     device: str | None = None,
     progress: bool = True,
-) -> DynamicsTrainResult:
+) -> TrainResult:
     """Train evolution model ``kind`` on the stores ``train``; save the MLflow model directory
     at ``out`` and log the run (params, per-epoch losses, timing, loss plot, model)."""
     import mlflow
@@ -45,9 +39,7 @@ def train_dynamics_job(
     dyn = config["dynamics"]
     split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
     meta = {
-        "train_points": [s.point for s in stores],
-        "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
-        "train_sources": [str(Path(p).resolve()) for p in train],
+        **training_meta(stores, train),
         "dynamics": dyn,
         "split": split,
         "seed": config.get("seed"),
@@ -58,25 +50,14 @@ def train_dynamics_job(
     with job_run(
         config, f"train dynamics {kind}", rule="train_dynamics", tags=tags, params=params
     ) as run:
-        log_epoch = None
-        if run is not None:
-
-            def log_epoch(epoch: int, tr: float, va: float) -> None:
-                mlflow.log_metrics({"train_loss": tr, "val_rollout_loss": va}, step=epoch)
-
+        log_epoch = epoch_logger(run, "val_rollout_loss")
         result = train_dynamics(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
         )
-        meta.update(
-            train_loss=result.train_loss,
-            val_loss=result.val_loss,
-            best_epoch=result.best_epoch,
-            samples=result.samples,
-            seconds=result.seconds,
-        )
+        meta.update(result_meta(result))
         model = result.model.cpu()
         with atomic_output(out) as tmp:
-            pyfunc.save(model, meta, tmp, _arrays(stores[0]))
+            pyfunc.save(model, meta, tmp, store_arrays(stores[0]))
         if run is not None:
             mlflow.log_metrics(
                 {
@@ -90,7 +71,7 @@ def train_dynamics_job(
                     result.train_loss, result.val_loss, Path(d) / "loss.png", f"dynamics {kind}"
                 )
                 mlflow.log_artifact(str(png))
-            result.model_uri = pyfunc.log(model, meta, _arrays(stores[0])).model_uri
+            result.model_uri = pyfunc.log(model, meta, store_arrays(stores[0])).model_uri
     return result
 
 

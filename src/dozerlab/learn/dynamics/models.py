@@ -14,6 +14,7 @@ the whole model.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import torch
@@ -84,6 +85,7 @@ class EvolutionUNet(nn.Module):
         self.d0 = _conv(3 * w, w)
         self.out = nn.Conv3d(w, outputs, 1)
         nn.init.zeros_(self.out.weight)
+        assert self.out.bias is not None
         nn.init.zeros_(self.out.bias)
 
     def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
@@ -107,6 +109,16 @@ class DynamicsModel(nn.Module):
     those of the training stores: the frame shift per row depends on them.
     """
 
+    coords: torch.Tensor
+    chan_mean: torch.Tensor
+    chan_std: torch.Tensor
+    cond_mean: torch.Tensor
+    cond_std: torch.Tensor
+    res_std: torch.Tensor
+    v_lo: torch.Tensor
+    v_hi: torch.Tensor
+    rho_hi: torch.Tensor
+
     def __init__(
         self,
         kind: str,
@@ -122,9 +134,15 @@ class DynamicsModel(nn.Module):
             raise ValueError(f"dynamics model must be one of {list(DYNAMICS_MODELS)}, got {kind!r}")
         if history < 1 or horizon < 1:
             raise ValueError(f"history and horizon must be >= 1, got {history} and {horizon}")
-        self.kind, self.grid = kind, tuple(int(n) for n in grid)
+        self.kind = kind
+        self.grid: tuple[int, int, int] = (int(grid[0]), int(grid[1]), int(grid[2]))
         self.history, self.horizon, self.width = int(history), int(horizon), int(width)
-        self.row_dt, self.bin_size = float(row_dt), tuple(float(b) for b in bin_size)
+        self.row_dt = float(row_dt)
+        self.bin_size: tuple[float, float, float] = (
+            float(bin_size[0]),
+            float(bin_size[1]),
+            float(bin_size[2]),
+        )
         channels = FIELD_CHANNELS * (self.history + self.horizon)
         cond = 3 * (self.history + self.horizon)
         outputs = FIELD_CHANNELS * self.horizon
@@ -135,6 +153,9 @@ class DynamicsModel(nn.Module):
             ("cond_mean", cond, 0.0),
             ("cond_std", cond, 1.0),
             ("res_std", FIELD_CHANNELS, 1.0),
+            ("v_lo", 3, -math.inf),
+            ("v_hi", 3, math.inf),
+            ("rho_hi", 1, math.inf),
         ):
             self.register_buffer(name, torch.full((n,), value))
         self.net: nn.Module | None = None
@@ -240,12 +261,14 @@ class DynamicsModel(nn.Module):
     def correct(
         self, base: tuple[torch.Tensor, torch.Tensor], residual: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Base fields plus the normalised residual (B, 4m, X, Y, Z); density kept >= 0."""
+        """Base fields plus the normalised residual (B, 4m, X, Y, Z), kept within the range of
+        the training fields (density in [0, ρ_max], each velocity component in [min, max]): a
+        rollout fed its own output stays bounded."""
         b, m = residual.shape[0], self.horizon
         r = (
             residual.view(b, m, FIELD_CHANNELS, *self.grid)
             * self.res_std[None, None, :, None, None, None]
         )
-        density = (base[1] + r[:, :, 0]).clamp_min(0)
+        density = torch.minimum((base[1] + r[:, :, 0]).clamp_min(0), self.rho_hi)
         velocity = base[0] + r[:, :, 1:].permute(0, 1, 3, 4, 5, 2)
-        return velocity, density
+        return torch.maximum(torch.minimum(velocity, self.v_hi), self.v_lo), density

@@ -17,16 +17,22 @@ known rows and the m rows to predict. Normalisation is inside the model. The dir
 from __future__ import annotations
 
 import json
-import tempfile
 from pathlib import Path
 from typing import Any
 
-import mlflow
 import numpy as np
 import torch
+from mlflow.pyfunc.model import PythonModel
 
 from dozerlab.learn.dynamics.models import DynamicsModel
-from dozerlab.learn.pyfunc import pip_requirements, untyped_predict
+from dozerlab.learn.pyfunc import (
+    log_model,
+    pip_requirements,
+    read_artifacts,
+    save_model,
+    untyped_predict,
+    write_artifacts,
+)
 from dozerlab.runtime import DozerlabError
 
 INPUT_NAMES = ("velocity", "density", "blade_velocity")
@@ -81,14 +87,14 @@ def predict_arrays(model: DynamicsModel, arrays: Any, batch: int = 64) -> dict[s
 
 with untyped_predict():
 
-    class DynamicsPyfunc(mlflow.pyfunc.PythonModel):
+    class DynamicsPyfunc(PythonModel):
         """MLflow pyfunc wrapper around a :class:`DynamicsModel`."""
 
         def load_context(self, context: Any) -> None:
             meta = json.loads(Path(context.artifacts["meta"]).read_text())
             self.model = build(meta, context.artifacts["weights"])
 
-        def predict(self, context, model_input, params=None):  # type: ignore[no-untyped-def]
+        def predict(self, context, model_input, params=None):
             """The contract's output dict of the contract's input dict."""
             return predict_arrays(self.model, model_input)
 
@@ -126,13 +132,10 @@ def example(model: DynamicsModel, arrays: dict[str, np.ndarray]) -> dict[str, np
 def _kwargs(
     model: DynamicsModel, meta: dict[str, Any], workdir: Path, arrays: dict[str, np.ndarray]
 ) -> dict[str, Any]:
-    weights, meta_path = workdir / "weights.pt", workdir / "meta.json"
-    torch.save({k: v.detach().cpu() for k, v in model.state_dict().items()}, weights)
-    meta_path.write_text(json.dumps({**meta, **model.spec()}, indent=1))
     return {
         # Models from code: loading runs this package's entry file instead of unpickling an object.
         "python_model": str(Path(__file__).with_name("pyfunc_entry.py")),
-        "artifacts": {"weights": str(weights), "meta": str(meta_path)},
+        "artifacts": write_artifacts(model, meta, workdir),
         "signature": signature(model),
         "input_example": example(model, arrays),
         "pip_requirements": pip_requirements(),
@@ -145,24 +148,17 @@ def save(
 ) -> None:
     """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist);
     ``arrays`` are per-row store arrays for the input example."""
-    with tempfile.TemporaryDirectory() as tmp:
-        mlflow.pyfunc.save_model(path=str(path), **_kwargs(model, meta, Path(tmp), arrays))
+    save_model(path, lambda tmp: _kwargs(model, meta, tmp, arrays))
 
 
 def log(model: DynamicsModel, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
     """Log ``model`` to the active MLflow run as the model named ``model``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return mlflow.pyfunc.log_model(name="model", **_kwargs(model, meta, Path(tmp), arrays))
+    return log_model(lambda tmp: _kwargs(model, meta, tmp, arrays))
 
 
 def load(path: str | Path) -> tuple[DynamicsModel, dict[str, Any]]:
     """Load a saved evolution model directory directly (no MLflow runtime): model and metadata."""
-    art = Path(path) / "artifacts"
-    if not (art / "meta.json").is_file() or not (art / "weights.pt").is_file():
-        raise FileNotFoundError(
-            f"not a dozerlab evolution model directory (no artifacts/meta.json, weights.pt): {path}"
-        )
-    meta = json.loads((art / "meta.json").read_text())
+    meta, weights = read_artifacts(path, "dozerlab evolution model")
     if "horizon" not in meta:
         raise DozerlabError(f"{path} is a force model, not an evolution model (no horizon)")
-    return build(meta, art / "weights.pt"), meta
+    return build(meta, weights), meta

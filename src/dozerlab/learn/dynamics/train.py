@@ -8,11 +8,8 @@ a convention, not an observation), as the velocity metric does (:mod:`.metrics`)
 
 from __future__ import annotations
 
-import copy
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,22 +19,8 @@ from tqdm import tqdm
 from dozerlab.learn.data import StoreData, split_train_validation
 from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
 from dozerlab.learn.dynamics.windows import WindowBatches, frame_of, windows
-from dozerlab.learn.fitting import NormalEquations, device_for, guard
-
-EpochCallback = Callable[[int, float, float], None]
-
-
-@dataclass
-class DynamicsTrainResult:
-    """A trained evolution model with its loss history and timing (s)."""
-
-    model: DynamicsModel
-    train_loss: list[float] = field(default_factory=list)
-    val_loss: list[float] = field(default_factory=list)
-    best_epoch: int = 0
-    samples: dict[str, int] = field(default_factory=dict)
-    seconds: float = 0.0
-    model_uri: str = ""
+from dozerlab.learn.fitting import EarlyStopping, NormalEquations, device_for, guard
+from dozerlab.learn.train import EpochCallback, TrainResult
 
 
 def _chunks(n: int, size: int) -> list[np.ndarray]:
@@ -46,11 +29,13 @@ def _chunks(n: int, size: int) -> list[np.ndarray]:
 
 @torch.no_grad()
 def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 512) -> float:
-    """Set the model's channel, control and residual statistics from (at most ``limit``, evenly
-    spread) training windows; returns the mean density of their bins (kg/m³), the scale of the
+    """Set the model's channel, control and residual statistics and the range of the true
+    fields from (at most ``limit``, evenly spread) training windows; returns the mean density of their bins (kg/m³), the scale of the
     loss's mass weights."""
     pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).astype(int))
     xs, cs, res, rho_sum, count = [], [], [], 0.0, 0
+    v_lo = torch.full((3,), math.inf)
+    v_hi, rho_hi = -v_lo, torch.zeros(1)
     for sel in np.array_split(pick, max(1, len(pick) // 64)):
         v, rho, vb, v_true, rho_true = data.get(sel, model.horizon)
         base = model.base(v, rho, vb)
@@ -75,6 +60,10 @@ def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 51
                 ]
             )
         )
+        for a, b in ((v, rho), (v_true, rho_true)):
+            v_lo = torch.minimum(v_lo, a.flatten(0, -2).min(0).values.cpu())
+            v_hi = torch.maximum(v_hi, a.flatten(0, -2).max(0).values.cpu())
+            rho_hi = torch.maximum(rho_hi, b.max().cpu().view(1))
         rho_sum += float(rho_true.double().sum())
         count += rho_true.numel()
     x, c, r = torch.cat(xs, 1), torch.cat(cs), torch.stack(res).sum(0)
@@ -89,6 +78,15 @@ def fit_normalization(model: DynamicsModel, data: WindowBatches, limit: int = 51
     model.cond_std.copy_(std(c, 0))
     spread = torch.cat([(r[0] / r[5]).sqrt().view(1), (r[1:4] / r[4].clamp_min(1e-30)).sqrt()])
     model.res_std.copy_(torch.where(spread > 0, spread, torch.ones_like(spread)))
+    # a tenth of the span as headroom: held-out runs may reach a little beyond the training ones
+    margin = 0.1 * (v_hi - v_lo)
+    bounds = (
+        (model.v_lo, v_lo - margin),
+        (model.v_hi, v_hi + margin),
+        (model.rho_hi, 1.1 * rho_hi),
+    )
+    for buffer, value in bounds:
+        buffer.copy_(value)
     return rho_sum / max(count, 1) or 1.0
 
 
@@ -109,11 +107,21 @@ def field_loss(
 
 @torch.no_grad()
 def fit_ridge(
-    model: DynamicsModel, data: WindowBatches, alpha: float, every: int, rho_scale: float
-) -> None:
+    model: DynamicsModel,
+    data: WindowBatches,
+    val: WindowBatches,
+    alphas: list[float],
+    every: int,
+    rho_scale: float,
+    calls: int,
+    on_alpha: EpochCallback | None = None,
+) -> tuple[list[float], list[float], int]:
     """Closed-form ridge of the normalised residuals on every ``every``-th training window, one
     fit per layer of bins along x: density unweighted, velocity weighted by true density, one
-    solve per predicted row."""
+    solve per predicted row. Each of ``alphas`` is solved from the same normal equations and
+    the one whose ``calls``-call rollouts on ``val`` have the lowest loss is kept: a linear map
+    fed its own output can amplify, which one row ahead does not show. Returns the one-step
+    training and the rollout validation loss of each alpha, and the index of the kept one."""
     net, m, layers = model.net, model.horizon, model.grid[0]
     assert isinstance(net, RidgeStencil)
     d = net.weight.shape[1]
@@ -133,15 +141,31 @@ def fit_ridge(
             eq_rho[i].add(r, y_rho[:, :, i].permute(0, 2, 1).reshape(-1, m))
             for j in range(m):
                 eq_v[i][j].add(r, y_v[:, j, i].reshape(-1, 3), w_v[:, j, i].reshape(-1))
-    for i in range(layers):
-        w_rho, b_rho = eq_rho[i].solve(alpha)
-        for j in range(m):
-            w_vel, b_vel = eq_v[i][j].solve(alpha)
-            f = FIELD_CHANNELS * j
-            net.weight[i, :, f] = w_rho[:, j].float()
-            net.bias[i, f] = float(b_rho[j])
-            net.weight[i, :, f + 1 : f + FIELD_CHANNELS] = w_vel.float()
-            net.bias[i, f + 1 : f + FIELD_CHANNELS] = b_vel.float()
+    train_loss, val_loss, states = [], [], []
+    for k, alpha in enumerate(alphas):
+        for i in range(layers):
+            w_rho, b_rho = eq_rho[i].solve(alpha)
+            for j in range(m):
+                w_vel, b_vel = eq_v[i][j].solve(alpha)
+                f = FIELD_CHANNELS * j
+                net.weight[i, :, f] = w_rho[:, j].float()
+                net.bias[i, f] = float(b_rho[j])
+                net.weight[i, :, f + 1 : f + FIELD_CHANNELS] = w_vel.float()
+                net.bias[i, f + 1 : f + FIELD_CHANNELS] = b_vel.float()
+        train_loss.append(_mean_loss(model, data, 1, rho_scale))
+        val_loss.append(_mean_loss(model, val, calls, rho_scale))
+        states.append({n: p.clone() for n, p in net.state_dict().items()})
+        if on_alpha:
+            on_alpha(k, train_loss[-1], val_loss[-1])
+    finite = [v if math.isfinite(v) else math.inf for v in val_loss]
+    best = int(np.argmin(finite))
+    guard(
+        finite[best],
+        "the validation rollout loss of every ridge alpha",
+        "raise dynamics.ridge_alphas",
+    )
+    net.load_state_dict(states[best])
+    return train_loss, val_loss, best
 
 
 def unrolled_loss(
@@ -182,7 +206,7 @@ def train_dynamics(
     device: str | None = None,
     on_epoch: EpochCallback | None = None,
     progress: bool = True,
-) -> DynamicsTrainResult:
+) -> TrainResult:
     """Train evolution model ``kind`` on ``stores`` (the training points) with
     ``config['dynamics']``; early stopping on the blocks of ``learn.validation_fraction`` /
     ``learn.validation_block`` (those of the force models)."""
@@ -191,22 +215,34 @@ def train_dynamics(
     dev = device_for(device)
     row_dt, bin_size = frame_of(stores)
     h, m = dyn["history"], dyn["horizon"]
-    calls = dyn["unroll"] if kind == "unet" else 1
-    train_s, val_s = split_train_validation(
-        windows(stores, h, m * calls), learn["validation_fraction"], learn["validation_block"]
-    )
+    calls, val_calls = (dyn["unroll"] if kind == "unet" else 1), dyn["val_rollout"]
+    fraction, block = learn["validation_fraction"], learn["validation_block"]
+    # the same blocks either way: windows differ only at each store's end
+    train_s, _ = split_train_validation(windows(stores, h, m * calls), fraction, block)
+    _, val_s = split_train_validation(windows(stores, h, m * val_calls), fraction, block)
     train, val = WindowBatches(train_s, dev), WindowBatches(val_s, dev)
     model = DynamicsModel(kind, stores[0].grid, h, m, row_dt, bin_size, dyn["width"]).to(dev)
-    result = DynamicsTrainResult(model, samples={"train": len(train), "validation": len(val)})
+    result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()
     rho_scale = fit_normalization(model, train)
     if kind == "ridge":
-        fit_ridge(model, train, dyn["ridge_alpha"], dyn["ridge_every"], rho_scale)
-    if kind == "unet":
+        result.train_loss, result.val_loss, result.best_epoch = fit_ridge(
+            model,
+            train,
+            val,
+            dyn["ridge_alphas"],
+            dyn["ridge_every"],
+            rho_scale,
+            val_calls,
+            on_epoch,
+        )
+    elif kind == "unet":
         _fit_unet(model, train, val, dyn, seed, rho_scale, result, on_epoch, progress)
     else:
-        tr, va = (_mean_loss(model, d, 1, rho_scale) for d in (train, val))
-        guard(va, "the validation loss", "raise dynamics.ridge_alpha")
+        tr, va = (
+            _mean_loss(model, train, 1, rho_scale),
+            _mean_loss(model, val, val_calls, rho_scale),
+        )
         result.train_loss, result.val_loss = [tr], [va]
         if on_epoch:
             on_epoch(0, tr, va)
@@ -217,7 +253,7 @@ def train_dynamics(
 
 @torch.no_grad()
 def _mean_loss(
-    model: DynamicsModel, data: WindowBatches, calls: int, rho_scale: float, limit: int = 256
+    model: DynamicsModel, data: WindowBatches, calls: int, rho_scale: float, limit: int = 128
 ) -> float:
     model.eval()
     pick = np.unique(np.linspace(0, len(data) - 1, min(limit, len(data))).astype(int))
@@ -235,7 +271,7 @@ def _fit_unet(
     dyn: dict[str, Any],
     seed: int,
     rho_scale: float,
-    result: DynamicsTrainResult,
+    result: TrainResult,
     on_epoch: EpochCallback | None,
     progress: bool,
 ) -> None:
@@ -243,7 +279,7 @@ def _fit_unet(
     opt = torch.optim.Adam(model.parameters(), lr=dyn["learning_rate"])
     gen = np.random.default_rng(seed)
     tgen = torch.Generator(device=train.device).manual_seed(seed)
-    best, best_state, waited = math.inf, copy.deepcopy(model.state_dict()), 0
+    stop = EarlyStopping(model, dyn["patience"], on_epoch)
     bar = tqdm(
         range(dyn["epochs"]), desc="train unet (dynamics)", unit="epoch", disable=not progress
     )
@@ -261,22 +297,14 @@ def _fit_unet(
             opt.step()
             total += value * len(sel)
         tr = total / len(order)
-        va = _mean_loss(model, val, calls, rho_scale)
+        va = _mean_loss(model, val, dyn["val_rollout"], rho_scale)
         guard(va, f"the validation rollout loss at epoch {epoch}", "lower dynamics.learning_rate")
-        result.train_loss.append(tr)
-        result.val_loss.append(va)
         bar.set_postfix(train=f"{tr:.4f}", val=f"{va:.4f}")
-        if on_epoch:
-            on_epoch(epoch, tr, va)
-        if va < best:
-            best, best_state, waited, result.best_epoch = (
-                va,
-                copy.deepcopy(model.state_dict()),
-                0,
-                epoch,
-            )
-        else:
-            waited += 1
-            if waited >= dyn["patience"]:
-                break
-    model.load_state_dict(best_state)
+        if stop.end_epoch(epoch, tr, va):
+            break
+    stop.restore()
+    result.train_loss, result.val_loss, result.best_epoch = (
+        stop.train_loss,
+        stop.val_loss,
+        stop.best_epoch,
+    )

@@ -13,7 +13,8 @@ import numpy as np
 
 from dozerlab.report import html
 from dozerlab.report.sections import Context
-from dozerlab.sweep import dynamics_validation_path, fmt_number
+from dozerlab.report.sections.models import _point
+from dozerlab.sweep import dynamics_validation_path
 
 TITLE = "Field-evolution models on held-out points"
 ORDER = 60
@@ -120,20 +121,23 @@ def _verdict(docs: dict[str, dict[str, Any]]) -> str:
         return "No persistence baseline validated: the targets are relative to it."
     lines = []
     for g in GROUPS:
-        scored = {
-            m: _ratios(docs, m, g) for m in docs if m != "persistence" and g in docs[m]["groups"]
-        }
-        scored = {m: r for m, r in scored.items() if None not in r}
+        scored: dict[str, tuple[float, float]] = {}
+        for m in docs:
+            if m != "persistence" and g in docs[m]["groups"]:
+                one, fifty = _ratios(docs, m, g)
+                if one is not None and fifty is not None:
+                    scored[m] = (one, fifty)
         if not scored:
             continue
-        best = min(scored, key=lambda m: max(scored[m]))  # type: ignore[type-var]
+        best = min(scored, key=lambda m: max(scored[m]))
         r = scored[best]
         mass = docs[best]["groups"][g]["overall"]["mass"]["max_abs_error"]
-        ok = max(r) <= RATIO_TARGET and mass <= MASS_TARGET  # type: ignore[type-var]
+        ok = max(r) <= RATIO_TARGET and mass <= MASS_TARGET
         lines.append(
             f"{g}: {best}, velocity error {r[0]:.2f}× persistence's one step and {r[1]:.2f}× at "
             f"50 steps, mass within {html.percent(mass)} "
-            f"({'meets' if ok else 'misses'} the targets ≤ {RATIO_TARGET}× and ±{html.percent(MASS_TARGET, 0)})"
+            f"({'meets' if ok else 'misses'} the targets ≤ {RATIO_TARGET}× and "
+            f"±{html.percent(MASS_TARGET, 0)})"
         )
     return "Best model per held-out group — " + "; ".join(lines) + "." if lines else ""
 
@@ -163,13 +167,6 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         + html.table(columns, rows)
         + "".join(figures)
     )
-
-
-def _point(entry: dict[str, Any]) -> str:
-    p = entry.get("point") or {}
-    if {"scenario", "speed", "depth"} <= p.keys():
-        return f"{p['scenario']}, {fmt_number(p['speed'])} m/s, {fmt_number(p['depth'])} m"
-    return str(entry["name"])
 
 
 def rollout_chart(docs: dict[str, dict[str, Any]]) -> Any:
