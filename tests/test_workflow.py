@@ -200,7 +200,7 @@ def test_report_has_table_figures_and_models(quick):
     text = (quick / "results" / "report" / "index.html").read_text()
     sections = re.findall(r'<section id="([a-z]+)">', text)
     assert {"sweep", "beds", "runs", "models", "reduced"} <= set(sections)
-    assert '<div class="note">Smoke test.' in text  # quick.yaml: report.smoke_test
+    assert '<div class="note">Smoke test' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
         assert f"{point.scenario} {point.name}: blade force (N) and torque" in text

@@ -151,7 +151,7 @@ def test_sections_without_data_are_left_out(tmp_path):
 def test_smoke_test_config_says_so(tmp_path):
     cfg = load_config({**CFG, "report": {"smoke_test": True}})
     text = build_report(cfg, tmp_path / "results", tmp_path / "index.html").read_text()
-    assert '<div class="note">Smoke test.' in text
+    assert '<div class="note">Smoke test' in text
 
 
 def test_every_section_module_is_complete():

@@ -77,7 +77,7 @@ class _Slice:
         self.ax.set_title(
             f"t = {t:.2f} s, y = {float(ds['y'].values[j]):+.3f} m; "
             "arrows: velocity relative to the blade",
-            fontsize=9,
+            fontsize=11,
         )
 
 
@@ -110,7 +110,7 @@ def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
             ax.plot(t, v[:, a], lw=1, label=f"{name} {c}")
         ax.plot(t, np.linalg.norm(v, axis=1), "k", lw=1.2, label=f"|{name}|")
         ax.set_ylabel(f"{name} ({unit})")
-        ax.legend(loc="upper left", fontsize=8, ncol=4)
+        ax.legend(loc="upper left", fontsize=10, ncol=4)
         ax.grid(alpha=0.3)
     ax_t.set_xlabel("time (s)")
     ax_f.set_title(

@@ -30,13 +30,18 @@ def _save(plt: Any, fig: Any, path: Path) -> Path:
 def loss_curves(
     train_loss: list[float], val_loss: list[float], path: str | Path, title: str = ""
 ) -> Path:
-    """Training and validation loss (MSE of normalised targets) per epoch, log scale.
+    """Write :func:`draw_losses` as a PNG at ``path``."""
+    plt, fig, ax = _figure()
+    draw_losses(ax[0, 0], train_loss, val_loss, title)
+    return _save(plt, fig, Path(path))
+
+
+def draw_losses(ax: Any, train_loss: list[float], val_loss: list[float], title: str = "") -> None:
+    """Training and validation loss (MSE of normalised targets) per epoch, log scale, on ``ax``.
 
     A model fitted in one closed-form solve (the ``linear`` ridge: one loss each, no epochs)
     gets a bar chart of its two losses instead of a curve of one point.
     """
-    plt, fig, ax = _figure()
-    ax = ax[0, 0]
     if len(train_loss) == 1 and len(val_loss) == 1:
         losses = [train_loss[0], val_loss[0]]
         bars = ax.barh(["training", "validation blocks"], losses, color=["C0", "C1"])
@@ -47,14 +52,13 @@ def loss_curves(
             xlabel="MSE of normalised targets",
             title=f"{title}\nclosed-form fit: one solve, no epochs" if title else "closed-form fit",
         )
-        return _save(plt, fig, Path(path))
+        return
     epochs = np.arange(len(train_loss))
     ax.plot(epochs, train_loss, "o-" if len(epochs) < 3 else "-", label="training")
     ax.plot(epochs, val_loss, "o-" if len(epochs) < 3 else "-", label="validation (early stopping)")
     ax.set(xlabel="epoch", ylabel="MSE of normalised targets", yscale="log", title=title)
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.legend()
-    return _save(plt, fig, Path(path))
 
 
 def force_series(

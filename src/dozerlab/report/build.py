@@ -57,9 +57,9 @@ def _intro(ctx: Context) -> str:
     )
     if ctx.cfg.get("report", {}).get("smoke_test"):
         text += html.note(
-            f"Smoke test. This configuration checks that the pipeline runs end to end: "
-            f"{n['train']} training points, {learn['epochs']} training epochs, coarse grains and "
-            "bins. Its forces and model errors are not results; the default sweep "
+            f"Smoke test (report.smoke_test). This configuration checks that the pipeline runs "
+            f"end to end, with {n['train']} training points and {learn['epochs']} training "
+            "epochs: its forces and model errors are not results. The default sweep "
             "(config/config.yaml) is the experiment."
         )
     return text

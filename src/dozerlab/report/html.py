@@ -42,7 +42,7 @@ nav { font-size: 0.95em; margin: 0.5em 0 1em; } nav a { margin-right: 1.2em; }
 table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.65em; text-align: right; }
 th { background: #f2f2f2; font-weight: 600; } tr.group td { background: #fafafa; font-weight: 600; }
-td.text, th.text { text-align: left; }
+td.text, th.text { text-align: left; } td.text { white-space: nowrap; }
 figure { display: inline-block; margin: 0.6em 0.6em 0.6em 0; vertical-align: top; max-width: 100%; }
 figure img { max-width: 100%; height: auto; border: 1px solid #e2e2e2; }
 figcaption { font-size: 0.9em; color: #444; max-width: 60em; }
@@ -96,12 +96,11 @@ def figure_style() -> AbstractContextManager[Any]:
     )
 
 
-def figure(source: bytes | str | Path | Any, caption: str, width: int | None = None) -> str:
-    """An embedded image with a caption (see :func:`data_uri` for ``source``); ``width`` in CSS
-    px caps the displayed width (default: the image's own width, at most the page's)."""
-    style = f' style="width:{int(width)}px"' if width else ""
+def figure(source: bytes | str | Path | Any, caption: str) -> str:
+    """An embedded image with a caption (see :func:`data_uri` for ``source``), shown at its own
+    width, at most the page's."""
     return (
-        f'<figure><img src="{data_uri(source)}" alt="{esc(caption)}"{style}>'
+        f'<figure><img src="{data_uri(source)}" alt="{esc(caption)}">'
         f"<figcaption>{esc(caption)}</figcaption></figure>"
     )
 

@@ -41,7 +41,7 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     if traj.height_x.size:
         ax.plot(traj.height_x, traj.height_raw, lw=0.7, color="0.55", label="height field (raw)")
         ax.plot(traj.height_x, traj.height_filtered, lw=1.6, color="C0", label="filtered")
-    ax.set_ylabel("z [m]")
+    ax.set_ylabel("z (m)")
     ax.set_title(f"{traj.scenario or 'bed'} height profile")
     ax.legend(loc="upper right")
 
@@ -59,7 +59,7 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
             label=f"goal height {traj.goal_height:g} m",
         )
     ax.plot(traj.position[:, 0], traj.position[:, 2], color="C3", lw=1.4, label="blade tip")
-    ax.set_ylabel("z [m]")
+    ax.set_ylabel("z (m)")
     ax.set_title(
         f"trajectory: speed {traj.speed:g} m/s, cut depth {traj.depth:g} m, {traj.steps} steps"
     )
@@ -70,8 +70,8 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     for k, name in enumerate("xyz"):
         ax.plot(x, traj.velocity[:, k], lw=1.2, label=f"v{name}")
     ax.plot(x, np.linalg.norm(traj.velocity, axis=1), lw=0.8, ls=":", color="k", label="|v|")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("velocity [m/s]")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("velocity (m/s)")
     ax.legend(loc="upper right")
     fig.tight_layout()
     _save(fig, path)
