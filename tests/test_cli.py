@@ -26,6 +26,10 @@ COMMANDS = [
     "train",
     "validate",
     "evaluate",
+    "train-dynamics",
+    "validate-dynamics",
+    "reduce",
+    "compare-reduced",
 ]
 
 
