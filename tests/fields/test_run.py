@@ -7,7 +7,7 @@ import pytest
 
 from dozerlab.cli import main
 from dozerlab.config import load_config
-from dozerlab.fields.store import open_store
+from dozerlab.fields.store import FIELD_STORE, open_store
 
 CONFIG = {
     "solver": {"dt": 0.01, "iterations": 30},
@@ -106,6 +106,10 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
     assert force[len(force) // 2 :, 0].mean() < 0
     assert len(list((tmp / "vtk").glob("particles_*.vtu"))) == traj.steps // 10
     assert {"force.png", "slice_000000.png"} <= {p.name for p in (tmp / "plots").iterdir()}
+    # A rerun replaces the store, snapshots and plots it wrote (each recognised as ours).
+    assert FIELD_STORE.recognise(out)
+    assert main(argv) == 0
+    assert open_store(out).sizes["time"] == traj.steps // 2
 
 
 @pytest.mark.parametrize(

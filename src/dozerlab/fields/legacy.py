@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from dozerlab import __version__
 from dozerlab.fields.store import ATTRS, DEFAULT_CHUNK_STEPS, FieldStoreWriter, open_store
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output
 
 HEADER_BYTES = 24
 _HEADER = np.dtype([("bins", "<i4", 3), ("bin_size", "<f4", 3)])
@@ -73,6 +73,21 @@ def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, fl
             f"{record} bytes but only {rest} remain (header says {bins} bins)"
         )
     return bins, bin_size, steps  # type: ignore[return-value]
+
+
+def _is_legacy(path: Path) -> bool:
+    """A file whose header and length are consistent legacy field data (:func:`read_header`)."""
+    if not path.is_file():
+        return False
+    try:
+        read_header(path)
+    except ValueError:
+        return False
+    return True
+
+
+#: What ``export-legacy`` writes; the format has no marker, so its header and length identify it.
+LEGACY_FILE = OutputKind("a legacy binary field file", _is_legacy)
 
 
 def import_legacy(
@@ -153,7 +168,7 @@ def export_legacy(store: str | Path, out: str | Path) -> Path:
     block = int(
         ds["velocity"].encoding.get("preferred_chunks", {}).get("time", DEFAULT_CHUNK_STEPS)
     )
-    with atomic_output(out) as tmp, open(tmp, "wb") as f:
+    with atomic_output(out, LEGACY_FILE) as tmp, open(tmp, "wb") as f:
         f.write(header.tobytes())
         for start in tqdm(
             range(0, steps, block), desc=f"export {Path(store).name}", unit="chunk", disable=None

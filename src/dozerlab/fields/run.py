@@ -22,10 +22,20 @@ from tqdm import tqdm
 
 from dozerlab import __version__
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.fields.store import FieldStoreWriter, open_store
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.fields.store import FIELD_STORE, FieldStoreWriter, open_store
+from dozerlab.runtime import (
+    DozerlabError,
+    OutputKind,
+    atomic_output,
+    check_output,
+    text_starts_with,
+)
 
 log = logging.getLogger(__name__)
+#: The particle snapshots of ``--vtk-dir`` (meshio's VTK XML unstructured grids).
+VTK_FILE = OutputKind(
+    "a VTK unstructured grid (.vtu)", text_starts_with('<VTKFile type="UnstructuredGrid"')
+)
 
 
 @dataclass
@@ -79,7 +89,7 @@ def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
         cells=[("vertex", np.arange(len(pos)).reshape(-1, 1))],
         point_data={"radius": np.asarray(world.radii), "velocity": np.asarray(world.velocities)},
     )
-    with atomic_output(vtk_dir / f"particles_{step:06d}.vtu") as tmp:
+    with atomic_output(vtk_dir / f"particles_{step:06d}.vtu", VTK_FILE) as tmp:
         meshio.write(tmp, mesh, file_format="vtu")
 
 
@@ -108,6 +118,7 @@ def simulate(
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
+    check_output(out, FIELD_STORE)  # before the run, not after it
     bed = Bed.load(bed_path)
     traj = Trajectory.load_csv(trajectory_path)
     dt = float(config["solver"]["dt"])

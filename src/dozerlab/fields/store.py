@@ -42,7 +42,7 @@ import xarray as xr
 import zarr
 from zarr.codecs import BloscCodec
 
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output
 
 COMPONENTS = ("x", "y", "z")
 #: Dimensions of each data variable.
@@ -81,6 +81,19 @@ ATTRS = (
     "dozerlab_version",
     "config",
 )
+
+
+def is_field_store(path: Path) -> bool:
+    """A zarr group whose attributes carry ``dozerlab_version`` (every store this package writes)."""
+    meta = path / "zarr.json"
+    if not meta.is_file():
+        return False
+    doc = json.loads(meta.read_text())
+    return doc.get("node_type") == "group" and "dozerlab_version" in doc.get("attributes", {})
+
+
+#: What ``simulate`` and ``import-legacy`` write; an existing store of ours may be replaced.
+FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
 #: Steps per inner chunk of a shard.
@@ -104,7 +117,8 @@ class FieldStoreWriter:
     an exception.
 
     Args:
-        path: the ``.zarr`` directory to create (replaced if it exists).
+        path: the ``.zarr`` directory to create (an existing field store there is replaced;
+            anything else is refused, :class:`~dozerlab.runtime.OutputExistsError`).
         x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
         attrs: store attributes (ARCHITECTURE.md); must be JSON-serialisable.
         chunk_steps: time steps per shard (>= 1).
@@ -161,7 +175,7 @@ class FieldStoreWriter:
 
     def __enter__(self) -> FieldStoreWriter:
         self._stack = ExitStack()
-        tmp = self._stack.enter_context(atomic_output(self.path))
+        tmp = self._stack.enter_context(atomic_output(self.path, FIELD_STORE))
         try:
             self._create(tmp)
         except BaseException:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 
 
 def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6):  # type: ignore[no-untyped-def]
@@ -20,8 +20,8 @@ def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6):  # type: i
 
 def _save(plt, fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
     fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, dpi=110, format="png", metadata=png_metadata())
     plt.close(fig)
     return path
 

@@ -8,9 +8,11 @@ import numpy as np
 
 from dozerlab.ndem.bodies import FIELDS as BODY_FIELDS
 from dozerlab.ndem.world import SPHERE_FIELDS, World
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
 
 FORMAT_VERSION = 1
+#: What :func:`save_world` writes (recognised by its format version and parameters).
+WORLD_FILE = OutputKind("a dozerlab World file (.npz)", npz_with(("format_version", "param_dt")))
 PARAMETERS = (
     "dt",
     "iterations",
@@ -44,7 +46,7 @@ def save_world(world: World, path: str | Path) -> None:
         "warm_hi": world._warm.hi,
         "warm_lam": world._warm.lam,
     }
-    with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+    with atomic_output(path, WORLD_FILE) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
 

@@ -50,7 +50,13 @@ def _bed(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     set_threads(args.threads)
 
+    from dozerlab.runtime import FIGURE, check_output
+    from dozerlab.scenarios.bed import BED_FILE
     from dozerlab.scenarios.build import build_bed
+
+    check_output(args.out, BED_FILE)  # before the settling, not after it
+    if args.plot:
+        check_output(args.plot, FIGURE)
     from dozerlab.scenarios.plots import plot_bed
     from dozerlab.tracking import tracked_run
 
@@ -82,10 +88,14 @@ def _bed(args: argparse.Namespace) -> int:
 
 def _trajectory(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
+    from dozerlab.runtime import FIGURE, check_output
     from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.trajectory import plan_trajectory, plot_trajectory
+    from dozerlab.scenarios.trajectory import TRAJECTORY_FILE, plan_trajectory, plot_trajectory
 
     config = load_config(args.config)
+    check_output(args.out, TRAJECTORY_FILE)
+    if args.plot:
+        check_output(args.plot, FIGURE)
     traj = plan_trajectory(Bed.load(args.bed), args.speed, args.depth, config)
     traj.save_csv(args.out)
     if args.plot:

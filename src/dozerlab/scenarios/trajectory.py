@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, first_line_is
 from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.blade import start_tip
 from dozerlab.scenarios.filters import smooth_height
@@ -40,6 +40,8 @@ from dozerlab.scenarios.plots import plot_trajectory
 __all__ = ["Trajectory", "cut_path", "plan_trajectory", "plot_trajectory", "walk_path"]
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
+#: What ``dozerlab trajectory`` writes: a CSV with exactly this header.
+TRAJECTORY_FILE = OutputKind("a dozerlab trajectory CSV", first_line_is(",".join(CSV_COLUMNS)))
 
 
 def _empty() -> np.ndarray:
@@ -80,7 +82,7 @@ class Trajectory:
         """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically."""
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
-        with atomic_output(path) as tmp:
+        with atomic_output(path, TRAJECTORY_FILE) as tmp:
             np.savetxt(
                 tmp,
                 table,

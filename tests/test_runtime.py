@@ -1,0 +1,110 @@
+"""``dozerlab.runtime.atomic_output``: outputs replace only what the same kind of command wrote."""
+
+import pytest
+
+from dozerlab.runtime import (
+    FIGURE,
+    OutputExistsError,
+    OutputKind,
+    atomic_output,
+    check_output,
+    png_metadata,
+)
+
+TEXT = OutputKind("a test text file", lambda p: p.is_file() and p.read_text().startswith("ours"))
+
+
+def write(out, text="ours", during=lambda: None):
+    """Write ``text`` through atomic_output, calling ``during()`` before the block ends."""
+    with atomic_output(out, TEXT) as tmp:
+        tmp.write_text(text)
+        during()
+
+
+def killed():
+    raise RuntimeError("killed")
+
+
+def test_a_new_output_appears_only_on_success(tmp_path):
+    out = tmp_path / "sub" / "out.txt"
+    with pytest.raises(RuntimeError):
+        write(out, "ours, half", during=killed)
+    assert not out.exists() and not list(out.parent.iterdir())
+    write(out, "ours, whole")
+    assert out.read_text() == "ours, whole"
+
+
+def test_an_output_of_the_same_kind_is_replaced(tmp_path):
+    out = tmp_path / "out.txt"
+    out.write_text("ours, old")
+    write(out, "ours, new")
+    assert out.read_text() == "ours, new"
+
+
+@pytest.mark.parametrize("foreign", ["dir", "file", "symlink"])
+def test_anything_else_is_refused_and_left_untouched(tmp_path, foreign):
+    out = tmp_path / "out.txt"
+    keep = tmp_path / "keep.txt"
+    keep.write_text("a user's data")
+    if foreign == "dir":
+        out.mkdir()
+        (out / "thesis.tex").write_text("years of work")
+    elif foreign == "file":
+        out.write_text("a user's data")
+    else:
+        out.symlink_to(keep)
+    with pytest.raises(
+        OutputExistsError, match=rf"refusing to replace {out}.*not a test text file"
+    ):
+        write(out)
+    assert keep.read_text() == "a user's data"
+    if foreign == "dir":
+        assert (out / "thesis.tex").read_text() == "years of work"
+    else:
+        assert out.read_text() == "a user's data"
+    assert not list(tmp_path.glob(".*tmp-*"))
+
+
+def test_something_appearing_during_the_work_is_not_replaced(tmp_path):
+    out = tmp_path / "out.txt"
+    with pytest.raises(OutputExistsError):
+        write(out, during=lambda: out.write_text("written meanwhile by someone else"))
+    assert out.read_text() == "written meanwhile by someone else"
+
+
+def test_without_a_kind_only_a_new_path_is_written(tmp_path):
+    out = tmp_path / "out.txt"
+    check_output(out, None)
+    out.write_text("x")
+    with pytest.raises(OutputExistsError, match="never replaced"):
+        check_output(out, None)
+
+
+def test_a_recogniser_that_fails_recognises_nothing(tmp_path):
+    def broken(path):
+        raise UnicodeDecodeError("utf-8", b"", 0, 1, "binary")
+
+    out = tmp_path / "out.bin"
+    out.write_bytes(b"\xff\xfe")
+    with pytest.raises(OutputExistsError):
+        check_output(out, OutputKind("anything", broken))
+
+
+def test_a_file_in_the_way_of_the_directory_is_refused(tmp_path):
+    (tmp_path / "plots").write_text("a file, not a directory")
+    with pytest.raises(OutputExistsError, match="in the way"):
+        write(tmp_path / "plots" / "a.txt")
+
+
+def test_figures_are_marked_and_others_pngs_are_not_replaced(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    ours, theirs = tmp_path / "ours.png", tmp_path / "theirs.png"
+    Figure().savefig(ours, format="png", metadata=png_metadata())
+    Figure().savefig(theirs, format="png")
+    check_output(ours, FIGURE)
+    with pytest.raises(OutputExistsError, match="not a PNG figure written by dozerlab"):
+        check_output(theirs, FIGURE)
