@@ -123,6 +123,10 @@ def import_legacy(
         "source": f"legacy binary {src.name}",
         "blade_position_origin": "integrated from blade_velocity; zero at the first step",
     }
+    if steps == 0:
+        raise ValueError(
+            f"{src}: the file holds a header ({bins} bins) but no steps; nothing to import"
+        )
     records = np.memmap(
         src, dtype=_record_dtype(bins), mode="r", offset=HEADER_BYTES, shape=(steps,)
     )
@@ -132,11 +136,12 @@ def import_legacy(
         for i in tqdm(range(steps), desc=f"import {src.name}", unit="step", disable=None):
             rec = records[i]
             t = float(rec["time"])
-            if not np.isfinite(t) or t < last_time:
-                offset = HEADER_BYTES + i * records.dtype.itemsize
+            offset = HEADER_BYTES + i * records.dtype.itemsize
+            if not np.isfinite(t) or t <= last_time:
                 raise ValueError(
-                    f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and non-decreasing"
+                    f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and strictly increasing"
                 )
+            _check_record(src, rec, i, offset)
             if i:
                 position = position + records[i - 1]["blade_velocity"] * (t - last_time)
             last_time = t
@@ -151,6 +156,18 @@ def import_legacy(
                 position,
             )
     return Path(out)
+
+
+def _check_record(src: Path, rec: np.void, step: int, offset: int) -> None:
+    """Refuse NaN/inf in a step's record, naming the field, the bin and the byte offset."""
+    for name in ("force", "torque", "blade_velocity", "cells"):
+        bad = np.argwhere(~np.isfinite(rec[name]))
+        if bad.size:
+            where = f" at bin {tuple(int(i) for i in bad[0][:3])}" if name == "cells" else ""
+            raise ValueError(
+                f"{src}: step {step} (record at byte offset {offset}) has NaN/inf in {name}{where}; "
+                "damaged data is not imported"
+            )
 
 
 def export_legacy(store: str | Path, out: str | Path) -> Path:

@@ -10,7 +10,7 @@ from typing import Any
 
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
-from dozerlab.learn.data import load_store, point_key
+from dozerlab.learn.data import check_grid, load_store, point_key
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import TrainResult, train_model
@@ -49,10 +49,12 @@ def train_job(
 
     check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
+    check_grid(stores)  # counts and sizes of the bins agree
     meta = {
         "train_points": [s.point for s in stores],
         "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
         "train_sources": [str(Path(p).resolve()) for p in train],
+        "bin_size": next((list(s.bin_size) for s in stores if s.bin_size is not None), None),
         "learn": config["learn"],
         "seed": config.get("seed"),
     }
@@ -150,7 +152,9 @@ def validate_job(
 
 def evaluate_job(model_dir: str | Path, stores: list[str | Path]) -> dict[str, Any]:
     """Metrics of a saved model on ``stores`` (per store and overall)."""
-    model, _ = pyfunc.load(model_dir)
-    result = evaluate(model, [load_store(p) for p in stores])
+    model, meta = pyfunc.load(model_dir)
+    data = [load_store(p) for p in stores]
+    check_grid(data, model.grid, meta.get("bin_size"))
+    result = evaluate(model, data)
     result["points"] = strip_series(result["points"])
     return result
