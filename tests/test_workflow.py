@@ -213,10 +213,20 @@ def test_quick_config_sets_every_field_the_default_config_sets():
     assert fields(default) <= fields(yaml.safe_load(QUICK.read_text()))
 
 
-def test_invalid_config_is_refused_before_any_job(tmp_path):
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\.0'.*allowed: >= 1"),
+        ("sweep: {speeds: [1.0, 1.0, 1]}\n", r"'sweep\.speeds'.*allowed: each value once"),
+        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\.0'.*allowed: <= 20"),
+        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\.0'.*deeper than the hill bed"),
+        ("sampling: {bins: [1024, 1024, 1024]}\n", r"sampling\.bins.*GiB of memory"),
+    ],
+)
+def test_invalid_config_is_refused_before_any_job(tmp_path, text, message):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("sampling: {bins: [0, 4, 4]}\n")
+    bad.write_text(text)
     done = snakemake(tmp_path, configfile=bad)
     assert done.returncode != 0
-    assert re.search(r"config field 'sampling\.bins\.0'.*allowed: >= 1", done.stderr)
+    assert re.search(message, done.stderr), done.stderr[-3000:]
     assert not (tmp_path / "results").exists() and not (tmp_path / "mlflow.db").exists()

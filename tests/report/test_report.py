@@ -59,17 +59,12 @@ def test_sweep_points_and_paths():
 
 
 def test_held_out_point_on_the_grid_is_refused():
-    cfg = load_config(
-        {
-            "sweep": {
-                "speeds": [1.0],
-                "depths": [0.1],
-                "extrapolation": [{"scenario": "step", "speed": 1.0, "depth": 0.1}],
-            }
-        }
-    )
+    cfg = load_config({"sweep": {"speeds": [1.0], "depths": [0.1]}})
+    cfg["sweep"]["extrapolation"] = [{"scenario": "step", "speed": 1.0, "depth": 0.1}]
     with pytest.raises(ConfigError, match=r"sweep\.extrapolation\.0"):
         P.sweep_points(cfg)
+    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\.0"):
+        load_config(cfg)  # and the config is refused before anything runs
 
 
 def _png(path, title):
