@@ -1,5 +1,12 @@
 """``dozerlab.runtime.atomic_output``: outputs replace only what the same kind of command wrote."""
 
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
 import pytest
 
 from dozerlab.runtime import (
@@ -8,7 +15,9 @@ from dozerlab.runtime import (
     OutputKind,
     atomic_output,
     check_output,
+    die_with_workflow,
     png_metadata,
+    process_token,
 )
 
 TEXT = OutputKind("a test text file", lambda p: p.is_file() and p.read_text().startswith("ours"))
@@ -108,3 +117,67 @@ def test_figures_are_marked_and_others_pngs_are_not_replaced(tmp_path):
     check_output(ours, FIGURE)
     with pytest.raises(OutputExistsError, match="not a PNG figure written by dozerlab"):
         check_output(theirs, FIGURE)
+
+
+WORKFLOW = """
+import os, socket, subprocess, sys, time
+os.environ["DOZERLAB_WORKFLOW_PID"] = str(os.getpid())
+os.environ["DOZERLAB_WORKFLOW_HOST"] = socket.gethostname()
+subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]], stderr=open(sys.argv[3], "w"))
+time.sleep(120)
+"""
+JOB = """
+import sys, time
+from dozerlab.runtime import atomic_output, die_with_workflow
+assert die_with_workflow(poll_s=0.1)
+with atomic_output(sys.argv[1]) as tmp:
+    tmp.write_text("half")
+    time.sleep(120)
+"""
+
+
+def test_a_job_stops_when_its_snakemake_is_killed(tmp_path):
+    """SIGKILL reaps no children: the job notices its workflow is gone and exits cleanly."""
+    out, err = tmp_path / "out.txt", tmp_path / "job.err"
+    workflow = subprocess.Popen([sys.executable, "-c", WORKFLOW, JOB, str(out), str(err)])
+    try:
+        deadline = time.monotonic() + 60
+        while not (partial := list(tmp_path.glob(".out.txt.tmp-*"))):
+            assert time.monotonic() < deadline and workflow.poll() is None, err.read_text()
+            time.sleep(0.05)
+        job_pid = int(partial[0].name.rsplit("-", 1)[1])
+        os.kill(workflow.pid, signal.SIGKILL)
+        workflow.wait()
+        deadline = time.monotonic() + 10
+        while process_token(job_pid) is not None:
+            assert time.monotonic() < deadline, "the orphaned job runs on"
+            time.sleep(0.05)
+    finally:
+        workflow.kill()
+    assert (
+        "snakemake process" in err.read_text() and "is gone; stopping this job" in err.read_text()
+    )
+    assert not out.exists() and not list(tmp_path.glob(".*tmp-*"))  # its temporary went with it
+
+
+def test_a_job_without_a_workflow_is_not_watched(monkeypatch):
+    monkeypatch.delenv("DOZERLAB_WORKFLOW_PID", raising=False)
+    assert not die_with_workflow()
+    monkeypatch.setenv("DOZERLAB_WORKFLOW_PID", str(os.getpid()))
+    monkeypatch.setenv("DOZERLAB_WORKFLOW_HOST", "another-node")
+    assert not die_with_workflow()
+
+
+def test_temporaries_of_dead_writers_on_this_host_are_removed(tmp_path):
+    host = socket.gethostname()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".out.txt.tmp-{host}-{dead.pid}"
+    live = tmp_path / f".out.txt.tmp-{host}-{os.getppid()}"  # a writer still at work
+    remote = tmp_path / f".out.txt.tmp-another-node-{dead.pid}"  # cannot be checked from here
+    for p in (stale, live, remote):
+        p.mkdir()
+        (p / "part").write_text("x")
+    write(tmp_path / "out.txt")
+    assert not stale.exists() and live.exists() and remote.exists()
+    assert (tmp_path / "out.txt").read_text() == "ours"

@@ -20,6 +20,7 @@ import xarray as xr
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
+from dozerlab.runtime import process_token
 from dozerlab.tracking import PARENT_ENV
 
 pytestmark = pytest.mark.slow
@@ -111,7 +112,10 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert len(parents) == 1
     parent = parents[0]
     assert parent.info.status == "FINISHED"
-    assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
+    artifacts = {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert "index.html" in artifacts
+    assert any(a.endswith(".snakemake.log") for a in artifacts), artifacts  # Snakemake's own log
+    assert parent.data.tags["dozerlab.host"] and parent.data.tags["dozerlab.pid"].isdigit()
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     rules = sorted(r.data.tags["rule"] for r in children)
@@ -194,6 +198,119 @@ def test_killed_simulation_is_redone_cleanly(quick):
     ds = xr.open_zarr(store)
     assert ds.attrs["speed"] == 1.1 and ds.sizes["time"] > 0
     assert not list(store.parent.glob("*.tmp-*"))
+
+
+def _processes() -> dict[int, str]:
+    """pid -> command line of this machine's processes (from /proc)."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                found[int(entry.name)] = (
+                    (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                )
+            except OSError:
+                continue
+    return found
+
+
+def _gone(pid: int, within_s: float) -> bool:
+    deadline = time.monotonic() + within_s
+    while process_token(pid) is not None:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
+    """SIGKILL to Snakemake itself: its simulate job stops, nothing half-written stays; the lock
+    stays (Snakemake's), --unlock lifts it, and the next run closes the dead parent run."""
+    point = P.SweepPoint("hill", 1.2, 0.05)
+    store = P.field_path(quick / "results", point)
+    target = str(store.relative_to(quick))
+    proc = subprocess.Popen(
+        snakemake_cmd(quick, target),
+        env=clean_env(),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
+            assert proc.poll() is None and time.monotonic() < deadline, "no simulation started"
+            time.sleep(0.05)
+        job = int(partial[0].name.rsplit("-", 1)[1])
+        proc.kill()  # Snakemake alone, as the OOM killer or `kill -9` would
+        proc.communicate(timeout=60)
+        assert _gone(job, within_s=20), "the simulate job runs on, orphaned"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert not store.exists() and not list(store.parent.glob("*.tmp-*"))
+    client, all_runs = runs(quick)
+    dead = max(
+        (r for r in all_runs if r.data.tags.get("rule") == "workflow"),
+        key=lambda r: r.info.start_time,
+    )
+    assert dead.info.status == "RUNNING"
+
+    locked = snakemake(quick, target)
+    assert locked.returncode != 0 and "cannot be locked" in locked.stderr  # README: --unlock
+    assert snakemake(quick, "--unlock").returncode == 0
+    done = snakemake(quick, target)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert client.get_run(dead.info.run_id).info.status == "KILLED"
+    assert xr.open_zarr(store).attrs["speed"] == 1.2
+
+
+def test_ctrl_c_during_onstart_is_a_clean_message(tmp_path):
+    proc = subprocess.Popen(
+        snakemake_cmd(tmp_path),
+        env=clean_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not any("mlflow-start" in c for c in _processes().values()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()[-3000:]
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err[-3000:]
+    assert "interrupted while starting the MLflow parent run; no job ran" in err
+    assert "Traceback" not in err and not (tmp_path / "results").exists()
+    assert not list((tmp_path / ".snakemake" / "locks").glob("*"))  # no --unlock needed
+
+
+@pytest.mark.parametrize(
+    ("target", "message"),
+    [
+        ("results/fields/hill/speed~1_depth~0.04.zarr", "ask for speed~1.0"),
+        ("results/fields/hill/speed~1.0_depth~0.040.zarr", "ask for depth~0.04"),
+        ("results/trajectories/hill/speed~1e0_depth~0.04.csv", "ask for speed~1.0"),
+        ("results/fields/hill/speed~-1.0_depth~0.04.zarr", r"allowed: a finite number > 0 m/s"),
+        ("results/plots/hill/speed~1.0_depth~fast", r"depth 'fast' is not a number"),
+    ],
+)
+def test_a_path_spelled_otherwise_gets_the_canonical_spelling_or_the_reason(
+    tmp_path, target, message
+):
+    done = snakemake(tmp_path, "-n", target)
+    said = done.stdout + done.stderr  # a dry run reports on stdout
+    assert done.returncode != 0
+    assert re.search(message, said), said[-3000:]
+    assert "MissingRuleException" not in said
 
 
 def test_quick_config_sets_every_field_the_default_config_sets():

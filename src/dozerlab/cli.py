@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError
+from dozerlab.runtime import DozerlabError, die_with_workflow
 
 # Modules that define ``register(subparsers)``; each adds its own commands.
 COMMAND_MODULES = (
@@ -46,8 +46,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    die_with_workflow()  # a workflow job stops when its snakemake is killed
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, DozerlabError) as exc:
         print(f"dozerlab {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"dozerlab {args.command}: interrupted", file=sys.stderr)
+        return 130

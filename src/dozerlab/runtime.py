@@ -9,10 +9,15 @@ costs a user their data.
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
+import signal
+import socket
 import sys
+import threading
+import time
 import zipfile
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
@@ -59,6 +64,72 @@ def thread_budget() -> int:
     except ValueError:
         n = 0
     return n if n >= 1 else len(os.sched_getaffinity(0))
+
+
+#: The workflow's process (Snakemake) and host, set by the Snakefile for its jobs.
+WORKFLOW_PID_ENV = "DOZERLAB_WORKFLOW_PID"
+WORKFLOW_HOST_ENV = "DOZERLAB_WORKFLOW_HOST"
+
+
+def process_token(pid: int) -> str | None:
+    """An identity of the live process ``pid`` that a reused pid does not share (its start
+    time in clock ticks since boot, Linux); None when no such process runs."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except PermissionError:
+            pass
+        return "alive"  # no /proc: liveness only
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return None if fields[0] in ("Z", "X") else fields[19]
+
+
+def workflow_process() -> tuple[int, str] | None:
+    """(pid, :func:`process_token`) of the Snakemake process this job belongs to, if it runs on
+    this host and lives; None for a job started by hand or on another host (SLURM)."""
+    try:
+        pid = int(os.environ.get(WORKFLOW_PID_ENV, ""))
+    except ValueError:
+        return None
+    if os.environ.get(WORKFLOW_HOST_ENV) != socket.gethostname() or pid == os.getpid():
+        return None
+    token = process_token(pid)
+    return None if token is None else (pid, token)
+
+
+def die_with_workflow(poll_s: float = 1.0) -> bool:
+    """Stop this job when its Snakemake process is gone (killed with SIGKILL, say).
+
+    Snakemake reaps its jobs when it is interrupted, but a SIGKILLed Snakemake reaps nothing and
+    its jobs would run on, orphaned. A daemon thread checks the workflow's process every
+    ``poll_s`` seconds; when it is gone, SIGTERM is sent to this process, whose handler exits
+    through ``SystemExit`` so that :func:`atomic_output` removes its temporary. Returns whether
+    a watch was started (a job of a live workflow on this host). Call from the main thread.
+    """
+    proc = workflow_process()
+    if proc is None:
+        return False
+    pid, token = proc
+
+    def stop(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    def watch() -> None:
+        while process_token(pid) == token:
+            time.sleep(poll_s)
+        print(
+            f"dozerlab: the workflow's snakemake process {pid} is gone; stopping this job",
+            file=sys.stderr,
+        )
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, stop)
+    threading.Thread(target=watch, name="dozerlab-workflow-watch", daemon=True).start()
+    return True
 
 
 #: The marker dozerlab writes into outputs that have room for one (PNG text, GIF comment, HTML).
@@ -113,7 +184,8 @@ def atomic_output(path: str | Path, kind: OutputKind | None = None) -> Iterator[
     ``kind`` recognises it as an output of the same kind (:func:`check_output`, checked on entry
     and again before the rename); otherwise :class:`OutputExistsError` is raised and ``path`` is
     left as it was. On any exception the temporary is removed, so no half-written output is
-    ever mistaken for a result.
+    ever mistaken for a result. The temporary is ``.NAME.tmp-HOST-PID``; one left by a writer
+    on this host that was killed outright (its PID no longer runs) is removed on the next write.
     """
     final = Path(path)
     check_output(final, kind)
@@ -123,7 +195,13 @@ def atomic_output(path: str | Path, kind: OutputKind | None = None) -> Iterator[
         raise OutputExistsError(
             f"cannot write {final}: a file is in the way of its directory {final.parent}"
         ) from None
-    tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}")
+    prefix = f".{final.name}.tmp-{socket.gethostname()}-"
+    # Temporaries of earlier writers on this host that died without cleaning up (SIGKILL).
+    for stale in final.parent.glob(glob.escape(prefix) + "*"):
+        pid = stale.name[len(prefix) :]
+        if pid.isdigit() and process_token(int(pid)) is None:
+            _remove(stale)
+    tmp = final.with_name(f"{prefix}{os.getpid()}")
     _remove(tmp)
     try:
         yield tmp

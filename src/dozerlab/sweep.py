@@ -20,8 +20,13 @@ import numpy as np
 from dozerlab.config import ConfigError
 
 ROLES = ("train", "interpolation", "extrapolation")
-#: What a speed or depth looks like in a path (the Snakefile's wildcard constraint).
+#: What a speed or depth looks like in a path.
 NUMBER_PATTERN = r"[0-9]+\.[0-9]+"
+#: What the Snakefile's wildcards accept as a speed or depth: any spelling, so that
+#: :func:`check_canonical` can name the right one (or the reason) instead of a missing rule.
+WILDCARD_PATTERN = r"[^_/]+"
+#: Units of the numbers in a path, for messages.
+UNITS = {"speed": "m/s", "depth": "m"}
 _POINT = re.compile(
     rf"speed~(?P<speed>{NUMBER_PATTERN})_depth~(?P<depth>{NUMBER_PATTERN})(\.[A-Za-z]+)?"
 )
@@ -44,7 +49,11 @@ def check_canonical(name: str, text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"{name} '{text}' is not a number") from None
+        raise ValueError(f"{name} '{text}' is not a number (write it like {name}~1.0)") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(
+            f"{name} '{text}' is not a {name} (allowed: a finite number > 0 {UNITS.get(name, '')})"
+        )
     if fmt_number(value) != text:
         raise ValueError(
             f"{name} '{text}' is not in canonical form; ask for {name}~{fmt_number(value)}"

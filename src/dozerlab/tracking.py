@@ -15,12 +15,14 @@ from contextlib import contextmanager
 from typing import Any
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
+#: ``0`` turns tracking off (``mlflow.enabled: false`` in the workflow).
+ENABLED_ENV = "DOZERLAB_MLFLOW"
 DEFAULT_URI = "sqlite:///mlflow.db"
 
 
 def enabled() -> bool:
     """Whether jobs log to MLflow (``DOZERLAB_MLFLOW`` is not ``0``)."""
-    return os.environ.get("DOZERLAB_MLFLOW", "1") != "0"
+    return os.environ.get(ENABLED_ENV, "1") != "0"
 
 
 @contextmanager

@@ -5,18 +5,50 @@ parent run before any job does, so the experiment and a fresh SQLite store are c
 not raced by parallel jobs; it exports the run id as ``DOZERLAB_PARENT_RUN_ID`` and every job's
 ``tracking.tracked_run`` becomes its child. ``onsuccess`` / ``onerror`` end it FINISHED / FAILED
 and attach the artifacts (the report, Snakemake's log) that this invocation wrote.
+
+A Snakemake killed outright (SIGKILL, a lost node) ends nothing: its run would stay RUNNING.
+So the parent run carries the workflow process's host, pid and start time as tags, and the next
+``mlflow-start`` closes, as KILLED, every RUNNING parent run whose process on this host is gone.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import socket
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 STATUSES = ("FINISHED", "FAILED", "KILLED")
+#: Tags naming the workflow process of a parent run (see the module docstring).
+HOST_TAG, PID_TAG, TOKEN_TAG = "dozerlab.host", "dozerlab.pid", "dozerlab.pid_start"
+
+
+def close_stale_runs(client: Any, experiment_id: str) -> list[str]:
+    """End as KILLED the RUNNING parent runs whose workflow process on this host is gone.
+
+    Runs of other hosts, and runs without the process tags, are left alone (their process
+    cannot be checked from here). Returns the ids closed.
+    """
+    from dozerlab.runtime import process_token
+
+    runs = client.search_runs(
+        [experiment_id],
+        filter_string="tags.rule = 'workflow' and attributes.status = 'RUNNING'",
+        max_results=1000,
+    )
+    closed = []
+    for run in runs:
+        tags = run.data.tags
+        if tags.get(HOST_TAG) != socket.gethostname() or not tags.get(PID_TAG, "").isdigit():
+            continue
+        if process_token(int(tags[PID_TAG])) != tags.get(TOKEN_TAG):
+            client.set_tag(run.info.run_id, "dozerlab.closed", "its snakemake process was gone")
+            client.set_terminated(run.info.run_id, status="KILLED")
+            closed.append(run.info.run_id)
+    return closed
 
 
 def start_parent_run(
@@ -28,6 +60,8 @@ def start_parent_run(
 ) -> str:
     """Create the experiment if needed and a RUNNING parent run in it; return the run id.
 
+    First closes the stale parent runs of this host (:func:`close_stale_runs`); the new run is
+    tagged with the workflow's process (``DOZERLAB_WORKFLOW_PID``) when it runs on this host.
     ``config`` (the validated config) is logged flattened as the run's params. When
     ``DOZERLAB_PARENT_RUN_ID`` is already set (the workflow itself runs inside a tracked run),
     the new run is nested under that one.
@@ -36,10 +70,17 @@ def start_parent_run(
     from mlflow.entities import Param
 
     from dozerlab import tracking
+    from dozerlab.runtime import workflow_process
 
     experiment_id = tracking.configure(experiment)
     client = MlflowClient()
+    for run_id in close_stale_runs(client, experiment_id):
+        print(
+            f"closed parent run {run_id} as KILLED: its snakemake process is gone", file=sys.stderr
+        )
     all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
+    if (proc := workflow_process()) is not None:
+        all_tags |= {HOST_TAG: socket.gethostname(), PID_TAG: str(proc[0]), TOKEN_TAG: proc[1]}
     outer = os.environ.get(tracking.PARENT_ENV)
     if outer:
         all_tags["mlflow.parentRunId"] = outer
@@ -77,8 +118,9 @@ def end_parent_run(
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    # Internal (the Snakefile's hooks call them): no help= keeps them out of `dozerlab --help`.
     p = sub.add_parser(
-        "mlflow-start", help="start the parent MLflow run of a workflow; print its id"
+        "mlflow-start", description="start the parent MLflow run of a workflow; print its id"
     )
     p.add_argument(
         "--experiment",
@@ -95,7 +137,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_start)
 
     p = sub.add_parser(
-        "mlflow-end", help="end a parent MLflow run, logging the artifacts it produced"
+        "mlflow-end", description="end a parent MLflow run, logging the artifacts it produced"
     )
     p.add_argument("run_id", help="the id mlflow-start printed")
     p.add_argument("--status", default="FINISHED", choices=STATUSES)

@@ -20,8 +20,6 @@ rule simulate:
             "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
         ),
     shell:
-        # Temporaries of a killed earlier attempt (runtime.atomic_output's .NAME.tmp-PID) go first.
-        'rm -rf "$(dirname {output:q})"/."$(basename {output:q})".tmp-*; '
         "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
         " --config {params.cfg:q} --out {output:q} --threads {threads} > {log:q} 2>&1"
 
