@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -157,34 +158,42 @@ def test_rerun_builds_nothing_and_logs_nothing(quick):
     assert len(runs(quick)[1]) == before
 
 
-def test_killed_simulation_is_redone_cleanly(quick):
-    # A point outside the configured sweep: built by asking for its path.
-    point = P.SweepPoint("hill", 1.1, 0.06)
-    store = P.field_path(quick / "results", point)
-    target = str(store.relative_to(quick))  # targets are paths relative to the working directory
-    proc = subprocess.Popen(
-        snakemake_cmd(quick, target),
+def background(workdir: Path, *args: str) -> subprocess.Popen:
+    """Snakemake started in its own process group (to signal it as a terminal would)."""
+    return subprocess.Popen(
+        snakemake_cmd(workdir, *args),
         env=clean_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
     )
+
+
+@contextmanager
+def simulating(workdir: Path, point: P.SweepPoint):
+    """Snakemake building one point's store, from the moment its simulate job writes:
+    yields (the Snakemake process, the store, the target, the simulate job's pid)."""
+    store = P.field_path(workdir / "results", point)
+    target = str(store.relative_to(workdir))  # targets are paths relative to the working directory
+    proc = background(workdir, target)
     try:
         deadline = time.monotonic() + 300
         while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
-            assert proc.poll() is None and time.monotonic() < deadline, (
-                "the simulation never started"
-            )
+            assert proc.poll() is None and time.monotonic() < deadline, "no simulation started"
             time.sleep(0.05)
-        os.kill(
-            int(partial[0].name.rsplit("-", 1)[1]), signal.SIGKILL
-        )  # the simulate process, mid-run
-        _, err = proc.communicate(timeout=120)
+        yield proc, store, target, int(partial[0].name.rsplit("-", 1)[1])
     finally:
         if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
+            os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def test_killed_simulation_is_redone_cleanly(quick):
+    # A point outside the configured sweep: built by asking for its path.
+    with simulating(quick, P.SweepPoint("hill", 1.1, 0.06)) as (proc, store, target, job):
+        os.kill(job, signal.SIGKILL)  # the simulate process, mid-run
+        _, err = proc.communicate(timeout=120)
     assert proc.returncode != 0, err[-3000:]
     assert not store.exists()
     _client, all_runs = runs(quick)
@@ -226,30 +235,10 @@ def _gone(pid: int, within_s: float) -> bool:
 def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
     """SIGKILL to Snakemake itself: its simulate job stops, nothing half-written stays; the lock
     stays (Snakemake's), --unlock lifts it, and the next run closes the dead parent run."""
-    point = P.SweepPoint("hill", 1.2, 0.05)
-    store = P.field_path(quick / "results", point)
-    target = str(store.relative_to(quick))
-    proc = subprocess.Popen(
-        snakemake_cmd(quick, target),
-        env=clean_env(),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
-    try:
-        deadline = time.monotonic() + 300
-        while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
-            assert proc.poll() is None and time.monotonic() < deadline, "no simulation started"
-            time.sleep(0.05)
-        job = int(partial[0].name.rsplit("-", 1)[1])
+    with simulating(quick, P.SweepPoint("hill", 1.2, 0.05)) as (proc, store, target, job):
         proc.kill()  # Snakemake alone, as the OOM killer or `kill -9` would
         proc.communicate(timeout=60)
         assert _gone(job, within_s=20), "the simulate job runs on, orphaned"
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
     assert not store.exists() and not list(store.parent.glob("*.tmp-*"))
     client, all_runs = runs(quick)
     dead = max(
@@ -268,14 +257,7 @@ def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
 
 
 def test_ctrl_c_during_onstart_is_a_clean_message(tmp_path):
-    proc = subprocess.Popen(
-        snakemake_cmd(tmp_path),
-        env=clean_env(),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    proc = background(tmp_path)
     try:
         deadline = time.monotonic() + 120
         while not any("mlflow-start" in c for c in _processes().values()):

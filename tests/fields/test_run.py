@@ -86,6 +86,13 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
         str(tmp / "vtk"),
         "--plots",
         str(tmp / "plots"),
+        # the labels are passed (the workflow passes its sweep point's), never parsed from names
+        "--scenario",
+        "hill",
+        "--speed",
+        "0.5",
+        "--depth",
+        "0.06",
     ]
     assert main(argv) == 0
     ds = open_store(out)
@@ -139,3 +146,18 @@ def test_bad_runs_are_refused_without_store(inputs, capsys, section, message):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp / "g.zarr").exists()
+
+
+def test_labels_come_from_arguments_not_file_names(inputs):
+    import json
+    import shutil
+
+    tmp, _bed, traj = inputs
+    renamed = tmp / "speed~9.0_depth~9.0.csv"  # a misleading name is not read
+    shutil.copy(tmp / "speed~0.5_depth~0.06.csv", renamed)
+    out = tmp / "unlabelled.zarr"
+    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(renamed)]
+    assert main([*argv, "--config", json.dumps(CONFIG), "--out", str(out)]) == 0
+    ds = open_store(out)
+    assert ds.attrs["scenario"] == "hill" and ds.attrs["depth"] is None
+    assert ds.attrs["speed"] == pytest.approx(traj.speed)

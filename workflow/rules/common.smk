@@ -18,7 +18,7 @@ from dozerlab import sweep as P
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))
 POINTS = P.sweep_points(config)
-RESULTS = "results"
+RESULTS = P.RESULTS
 if not config["mlflow"]["enabled"]:
     os.environ[tracking.ENABLED_ENV] = "0"  # the jobs' tracked_run reads this
 # The jobs stop when this process is gone (runtime.die_with_workflow): a SIGKILLed Snakemake
@@ -82,7 +82,7 @@ def all_targets():
         targets.append(str(P.field_path(RESULTS, p)))
     targets += [str(P.model_path(RESULTS, m)) for m in config["learn"]["models"]]
     targets += [str(P.validation_path(RESULTS, m)) for m in validated_models()]
-    targets.append(f"{RESULTS}/report/index.html")
+    targets.append(P.pattern("report"))
     return targets
 
 
@@ -113,7 +113,7 @@ def end_parent_run(status, log):
     if not tracking.enabled() or not run_id:
         return
     logs = [log] if isinstance(log, (str, os.PathLike)) else list(log or [])
-    artifacts = [f"{RESULTS}/report/index.html"] + [str(p) for p in logs]
+    artifacts = [P.pattern("report")] + [str(p) for p in logs]
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]

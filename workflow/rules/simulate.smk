@@ -4,16 +4,16 @@
 rule simulate:
     input:
         canonical,
-        bed="results/beds/{scenario}.npz",
-        trajectory="results/trajectories/{scenario}/speed~{speed}_depth~{depth}.csv",
+        bed=P.pattern("bed"),
+        trajectory=P.pattern("trajectory"),
     output:
         # A directory: Snakemake removes it if the job fails; the command builds it in a
         # temporary sibling and renames it when complete, so a killed job leaves no store.
-        directory("results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr"),
+        directory(P.pattern("field")),
     benchmark:
-        "results/benchmarks/simulate/{scenario}/speed~{speed}_depth~{depth}.tsv"
+        P.pattern("simulate_benchmark")
     log:
-        "logs/simulate/{scenario}/speed~{speed}_depth~{depth}.log",
+        "logs/simulate/{scenario}/" + P.POINT_STEM + ".log",
     threads: config["threads"]["simulate"]
     params:
         cfg=lambda wc: config_json(
@@ -21,6 +21,7 @@ rule simulate:
         ),
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
+        " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth}"
         " --config {params.cfg:q} --out {output:q} --threads {threads} > {log:q} 2>&1"
 
 
@@ -28,11 +29,11 @@ rule simulate:
 rule plot_fields:
     input:
         canonical,
-        store="results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr",
+        store=P.pattern("field"),
     output:
-        directory("results/plots/{scenario}/speed~{speed}_depth~{depth}"),
+        directory(P.pattern("field_plots")),
     log:
-        "logs/plot_fields/{scenario}/speed~{speed}_depth~{depth}.log",
+        "logs/plot_fields/{scenario}/" + P.POINT_STEM + ".log",
     threads: 1
     shell:
         "python -m dozerlab plot-fields {input.store:q} --out {output:q} > {log:q} 2>&1"

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import tempfile
 import time as wallclock
 from dataclasses import dataclass, field
@@ -74,12 +73,6 @@ class RunStats:
         return out
 
 
-def _from_name(path: Path, key: str) -> float | None:
-    """A ``key~value`` number in a workflow file name such as ``speed~1.0_depth~0.1.csv``."""
-    m = re.search(rf"{key}~([0-9.eE+-]+?)(?:_|\.csv$|$)", path.name)
-    return float(m.group(1)) if m else None
-
-
 def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
     import meshio
 
@@ -108,9 +101,9 @@ def simulate(
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
-    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
-    the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
-    name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
+    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (the
+    workflow passes its sweep point's; defaults: the bed's scenario, the trajectory's speed, no
+    depth). File names are never parsed for them. VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
     slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
@@ -127,12 +120,7 @@ def simulate(
             f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
         )
     scenario = scenario or bed.scenario
-    speed = (
-        speed
-        if speed is not None
-        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
-    )
-    depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
+    speed = speed if speed is not None else round(traj.speed, 6)
     s = config["sampling"]
     grid = SamplingGrid.from_config(config)
     attrs = {

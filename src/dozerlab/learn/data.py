@@ -109,7 +109,7 @@ def load_store(path: str | Path) -> StoreData:
     from dozerlab.fields.store import open_store
 
     ds = open_store(path)  # checks the schema and for damage (lost chunks, NaN, time order)
-    point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
+    point = {k: v for k in ("scenario", "speed", "depth") if (v := ds.attrs.get(k)) is not None}
     size = ds.attrs.get("bin_size")
     data = from_arrays(
         read_field(path, "velocity"),

@@ -22,7 +22,7 @@ from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.collect import HEADERS, point_figures, summarize
 from dozerlab.runtime import atomic_output, check_output
-from dozerlab.sweep import SweepPoint, sweep_points, validation_path
+from dozerlab.sweep import SweepPoint, bed_path, sweep_points, validation_path
 
 #: Components of the model comparison table (the blade's draft force, lift and pitch torque).
 COMPARED = ("force_x", "force_z", "torque_y")
@@ -69,7 +69,7 @@ def _sweep_table(results: Path, points: list[SweepPoint]) -> str:
 def _beds(results: Path, points: list[SweepPoint]) -> str:
     figs = []
     for scenario in dict.fromkeys(p.scenario for p in points):
-        png = results / "beds" / f"{scenario}.png"
+        png = bed_path(results, scenario, "png")
         if png.is_file():
             figs.append(html.figure(png, f"settled {scenario} bed"))
     return "<h2>Beds</h2>" + ("".join(figs) or '<p class="missing">no bed plots yet</p>')
