@@ -58,3 +58,15 @@ def test_the_parent_run_of_a_killed_snakemake_is_closed_as_killed(store, monkeyp
         for p in (killed, running):
             p.kill()
             p.wait()
+
+
+def test_the_internal_commands_are_hidden_from_help(capsys):
+    from dozerlab.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    listed = capsys.readouterr().out
+    assert "simulate" in listed and "mlflow-start" not in listed and "mlflow-end" not in listed
+    with pytest.raises(SystemExit):
+        main(["mlflow-end", "--help"])  # still there for the Snakefile's hooks
+    assert "--status" in capsys.readouterr().out

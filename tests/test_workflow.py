@@ -295,6 +295,14 @@ def test_a_path_spelled_otherwise_gets_the_canonical_spelling_or_the_reason(
     assert "MissingRuleException" not in said
 
 
+def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):
+    """README says why rules have no conda/container directive; nothing else may be linted."""
+    done = snakemake(tmp_path, "--lint")
+    lints = re.findall(r"^\s+\* (.+?):?$", done.stdout + done.stderr, flags=re.M)
+    assert lints, (done.stdout + done.stderr)[-3000:]
+    assert set(lints) == {"Specify a conda environment or container for each rule."}
+
+
 def test_quick_config_sets_every_field_the_default_config_sets():
     """Snakemake lays --configfile over config/config.yaml in the project, not in a bare workdir:
     the quick sweep is the same either way only if it overrides every field."""

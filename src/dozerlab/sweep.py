@@ -151,6 +151,11 @@ PATHS = {
 RESULTS = "results"
 
 
+def log_pattern(rule: str) -> str:
+    """``logs/{rule}/{scenario}/speed~{speed}_depth~{depth}.log``: a per-point job's log."""
+    return f"logs/{rule}/{{scenario}}/{POINT_STEM}.log"
+
+
 def pattern(kind: str, results: str | Path = RESULTS) -> str:
     """The path pattern of one kind of result (a key of :data:`PATHS`), with wildcards."""
     return f"{Path(results).as_posix()}/{PATHS[kind]}"

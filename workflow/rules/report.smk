@@ -13,6 +13,5 @@ rule report:
     threads: 1
     params:
         cfg=lambda wc: config_json("sweep", "learn"),
-        results=P.RESULTS,
     shell:
-        "python -m dozerlab report --config {params.cfg:q} --results {params.results:q} --out {output:q} > {log:q} 2>&1"
+        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} > {log:q} 2>&1" % P.RESULTS

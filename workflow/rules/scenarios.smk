@@ -29,7 +29,7 @@ rule trajectory:
             labels={"speed (m/s)": "{speed}", "depth (m)": "{depth}"},
         ),
     log:
-        "logs/trajectory/{scenario}/" + P.POINT_STEM + ".log",
+        P.log_pattern("trajectory"),
     threads: 1
     params:
         cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory", scenario=wc.scenario),

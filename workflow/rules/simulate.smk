@@ -13,7 +13,7 @@ rule simulate:
     benchmark:
         P.pattern("simulate_benchmark")
     log:
-        "logs/simulate/{scenario}/" + P.POINT_STEM + ".log",
+        P.log_pattern("simulate"),
     threads: config["threads"]["simulate"]
     params:
         cfg=lambda wc: config_json(
@@ -33,7 +33,7 @@ rule plot_fields:
     output:
         directory(P.pattern("field_plots")),
     log:
-        "logs/plot_fields/{scenario}/" + P.POINT_STEM + ".log",
+        P.log_pattern("plot_fields"),
     threads: 1
     shell:
         "python -m dozerlab plot-fields {input.store:q} --out {output:q} > {log:q} 2>&1"
