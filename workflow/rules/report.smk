@@ -7,7 +7,7 @@ rule report:
         trajectories=[str(P.trajectory_path(RESULTS, p, "png")) for p in POINTS],
         validation=[str(P.validation_path(RESULTS, m)) for m in validated_models()],
     output:
-        report("results/report/index.html", caption="../report/index.rst", category="Report"),
+        report(P.pattern("report"), caption="../report/index.rst", category="Report"),
     log:
         "logs/report.log",
     threads: 1
@@ -16,4 +16,4 @@ rule report:
     params:
         cfg=lambda wc: config_json("sweep", "learn"),
     shell:
-        "python -m dozerlab report --config {params.cfg:q} --results results --out {output:q} > {log:q} 2>&1"
+        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} > {log:q} 2>&1" % P.RESULTS

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 from pathlib import Path
 from typing import Any
 
@@ -18,15 +17,10 @@ import numpy as np
 from dozerlab import __version__
 from dozerlab.fields.run import drive
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.fields.store import open_store
+from dozerlab.fields.store import FIELD_STORE, open_store
+from dozerlab.runtime import check_output
 
 log = logging.getLogger(__name__)
-
-
-def _from_name(path: Path, key: str) -> float | None:
-    """A ``key~value`` number in a workflow file name such as ``speed~1.0_depth~0.1.csv``."""
-    m = re.search(rf"{key}~([0-9.eE+-]+?)(?:_|\.csv$|$)", path.name)
-    return float(m.group(1)) if m else None
 
 
 def simulate(
@@ -44,9 +38,10 @@ def simulate(
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
-    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
-    the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
-    name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
+    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (the
+    workflow passes its sweep point's; defaults: the bed's scenario, the trajectory's speed, no
+    depth). File names are never parsed for them. VTK snapshots go to ``vtk_dir`` every
+    ``sampling.vtk_every`` steps (when both are set);
     slice and force plots of the store to ``plots_dir`` and to MLflow. Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
@@ -54,6 +49,7 @@ def simulate(
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
+    check_output(out, FIELD_STORE)  # before the run, not after it
     bed = Bed.load(bed_path)
     traj = Trajectory.load_csv(trajectory_path)
     dt = float(config["solver"]["dt"])
@@ -62,12 +58,7 @@ def simulate(
             f"trajectory time step {traj.dt} s differs from solver.dt {dt} s; plan it with the same config"
         )
     scenario = scenario or bed.scenario
-    speed = (
-        speed
-        if speed is not None
-        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
-    )
-    depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
+    speed = speed if speed is not None else round(traj.speed, 6)
     s = config["sampling"]
     grid = SamplingGrid.from_config(config)
     attrs = {

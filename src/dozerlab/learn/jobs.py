@@ -9,12 +9,20 @@ from typing import Any
 
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
-from dozerlab.learn.data import load_store, point_key
+from dozerlab.learn.data import check_grid, load_store, point_key
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import TrainResult, train_model
 from dozerlab.learn.validate import evaluate, html_section, load_groups, strip_series, validate
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output, check_output, json_with, text_starts_with
+
+#: What ``validate`` writes beside its plots: the metrics JSON and the report's HTML fragment.
+VALIDATION_JSON = OutputKind(
+    "a dozerlab validation JSON", json_with(("model", "groups", "overall", "summary"))
+)
+VALIDATION_HTML = OutputKind(
+    "a dozerlab validation section", text_starts_with('<section class="validation"')
+)
 
 
 def train_job(
@@ -29,11 +37,14 @@ def train_job(
     log the run (params, per-epoch losses, final training metrics, loss plot, model)."""
     import mlflow
 
+    check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
+    check_grid(stores)  # counts and sizes of the bins agree
     meta = {
         "train_points": [s.point for s in stores],
         "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
         "train_sources": [str(Path(p).resolve()) for p in train],
+        "bin_size": next((list(s.bin_size) for s in stores if s.bin_size is not None), None),
         "learn": config["learn"],
         "seed": config.get("seed"),
     }
@@ -68,7 +79,7 @@ def train_job(
             "density": stores[0].density,
             "blade_velocity": stores[0].blade_velocity,
         }
-        with atomic_output(out) as tmp:
+        with atomic_output(out, pyfunc.MODEL_DIR) as tmp:
             pyfunc.save(model, meta, tmp, example)
         if run is not None:
             fit = evaluate(model, stores)["overall"]
@@ -100,8 +111,10 @@ def validate_job(
     named after ``out``), the HTML fragment next to the JSON, and an MLflow validate run."""
     import mlflow
 
-    model, meta = pyfunc.load(model_dir)
     out = Path(out)
+    check_output(out, VALIDATION_JSON)
+    check_output(out.with_suffix(".html"), VALIDATION_HTML)
+    model, meta = pyfunc.load(model_dir)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
     groups = load_groups(interpolation, extrapolation)
     params = {
@@ -113,10 +126,10 @@ def validate_job(
         config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
-        with atomic_output(out) as tmp:
+        with atomic_output(out, VALIDATION_JSON) as tmp:
             tmp.write_text(json.dumps(result, indent=1))
         fragment = out.with_suffix(".html")
-        with atomic_output(fragment) as tmp:
+        with atomic_output(fragment, VALIDATION_HTML) as tmp:
             tmp.write_text(html_section(out))
         if run is not None:
             metrics = flat(result["overall"], "overall")
@@ -131,7 +144,9 @@ def validate_job(
 
 def evaluate_job(model_dir: str | Path, stores: list[str | Path]) -> dict[str, Any]:
     """Metrics of a saved model on ``stores`` (per store and overall)."""
-    model, _ = pyfunc.load(model_dir)
-    result = evaluate(model, [load_store(p) for p in stores])
+    model, meta = pyfunc.load(model_dir)
+    data = [load_store(p) for p in stores]
+    check_grid(data, model.grid, meta.get("bin_size"))
+    result = evaluate(model, data)
     result["points"] = strip_series(result["points"])
     return result

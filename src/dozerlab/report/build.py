@@ -21,8 +21,8 @@ from typing import Any
 from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.collect import HEADERS, point_figures, summarize
-from dozerlab.runtime import atomic_output
-from dozerlab.sweep import SweepPoint, sweep_points, validation_path
+from dozerlab.runtime import atomic_output, check_output
+from dozerlab.sweep import SweepPoint, bed_path, sweep_points, validation_path
 
 #: Components of the model comparison table (the blade's draft force, lift and pitch torque).
 COMPARED = ("force_x", "force_z", "torque_y")
@@ -32,6 +32,7 @@ _SRC = re.compile(r'src="([^"]+)"')
 def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -> Path:
     """Write the report of the validated config's sweep, read from ``results``, to ``out``."""
     results, out = Path(results), Path(out)
+    check_output(out, html.REPORT_PAGE)
     points = sweep_points(cfg)
     body = [
         _intro(cfg, points),
@@ -41,7 +42,7 @@ def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -
         _models(cfg, results, out.parent),
     ]
     text = html.page("dozerlab report", body)
-    with atomic_output(out) as tmp:
+    with atomic_output(out, html.REPORT_PAGE) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return out
 
@@ -68,7 +69,7 @@ def _sweep_table(results: Path, points: list[SweepPoint]) -> str:
 def _beds(results: Path, points: list[SweepPoint]) -> str:
     figs = []
     for scenario in dict.fromkeys(p.scenario for p in points):
-        png = results / "beds" / f"{scenario}.png"
+        png = bed_path(results, scenario, "png")
         if png.is_file():
             figs.append(html.figure(png, f"settled {scenario} bed"))
     return "<h2>Beds</h2>" + ("".join(figs) or '<p class="missing">no bed plots yet</p>')

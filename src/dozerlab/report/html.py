@@ -13,6 +13,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from dozerlab.runtime import MARK, OutputKind, text_starts_with
+
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
 h1, h2, h3 { font-weight: 600; }
@@ -90,6 +92,13 @@ def page(title: str, body: Sequence[str]) -> str:
     """A complete HTML document."""
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f'<meta name="generator" content="{MARK}">'
         f"<title>{esc(title)}</title><style>{_STYLE}</style></head>\n<body>\n"
         f"<h1>{esc(title)}</h1>\n" + "\n".join(body) + "\n</body></html>\n"
     )
+
+
+#: What :func:`page` writes (``dozerlab report``); recognised by its generator tag.
+REPORT_PAGE = OutputKind(
+    "a dozerlab report page", text_starts_with(f'<meta name="generator" content="{MARK}">')
+)
