@@ -139,14 +139,16 @@ def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10
     fig.canvas.draw()
     fig.set_layout_engine("none")  # fix the layout once; frames only swap data
     dpi = 80
-    size = tuple(int(v) for v in fig.get_size_inches() * dpi)
+    width, height = (int(v) for v in fig.get_size_inches() * dpi)
     images = []
     for s in steps:
         view.show(int(s))
         buf = io.BytesIO()
         fig.savefig(buf, format="rgba", dpi=dpi)
         images.append(
-            Image.frombuffer("RGBA", size, buf.getbuffer(), "raw", "RGBA", 0, 1).convert("RGB")
+            Image.frombuffer("RGBA", (width, height), buf.getvalue(), "raw", "RGBA", 0, 1).convert(
+                "RGB"
+            )
         )
     with atomic_output(path, ANIMATION) as tmp:
         # The comment marks the GIF as ours, so a later run may replace it (runtime.ANIMATION).

@@ -35,7 +35,7 @@ from collections.abc import Mapping
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import xarray as xr
@@ -44,6 +44,9 @@ from zarr.codecs import BloscCodec
 
 from dozerlab.fields.reader import DamagedStoreError, missing_pieces
 from dozerlab.runtime import OutputKind, atomic_output
+
+if TYPE_CHECKING:
+    from zarr.core.array_spec import ArrayConfigParams
 
 COMPONENTS = ("x", "y", "z")
 #: Dimensions of each data variable.
@@ -97,7 +100,7 @@ def is_field_store(path: Path) -> bool:
 FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
 #: zarr skips chunks that hold only the fill value; written all, a missing one is damage, not a
 #: run of zeros (``reader.missing_pieces``, :func:`open_store`).
-_ALL_CHUNKS = {"write_empty_chunks": True}
+_ALL_CHUNKS: ArrayConfigParams = {"write_empty_chunks": True}
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
 #: Steps per inner chunk of a shard.
@@ -406,10 +409,10 @@ def _check_damage(path: Path, ds: xr.Dataset) -> None:
         )
     for name in ("force", "torque", "blade_velocity", "blade_position"):
         values = np.asarray(ds[name].values)
-        bad = np.argwhere(~np.isfinite(values))
-        if bad.size:
+        where = np.argwhere(~np.isfinite(values))
+        if where.size:
             raise DamagedStoreError(
-                f"{path}: array '{name}' holds {len(bad)} NaN/inf value(s), first at step {bad[0][0]}"
+                f"{path}: array '{name}' holds {len(where)} NaN/inf value(s), first at step {where[0][0]}"
             )
 
 
