@@ -95,3 +95,13 @@ def test_listing_the_commands_imports_no_heavy_library():
     )
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_internal_commands_are_hidden_from_help(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    listed = capsys.readouterr().out
+    assert "simulate" in listed and "mlflow-start" not in listed and "mlflow-end" not in listed
+    with pytest.raises(SystemExit):
+        main(["mlflow-end", "--help"])  # still there for the Snakefile's hooks
+    assert "--status" in capsys.readouterr().out

@@ -2,7 +2,14 @@ import json
 
 import pytest
 
-from dozerlab.config import ConfigError, ConfigWarning, load_config
+from dozerlab.cli import main
+from dozerlab.config import (
+    ConfigError,
+    ConfigWarning,
+    check_memory,
+    load_config,
+    memory_estimate,
+)
 
 
 def test_defaults_fill_a_partial_document():
@@ -83,3 +90,87 @@ def test_a_gap_where_grains_wedge_is_flagged():
     # 5 cm grains, 5 cm between each blade end and wall: one grain jams there
     with pytest.warns(ConfigWarning, match=r"'bed.width' and 'blade.width'.*1 grain diameters"):
         load_config({"bed": {"width": 0.8, "radius": 0.025}, "blade": {"width": 0.7}})
+
+
+@pytest.mark.parametrize(
+    ("doc", "field", "allowed"),
+    [
+        ({"sweep": {"speeds": [1.0, 1.0, 1]}}, "sweep.speeds", "each value once"),
+        ({"sweep": {"depths": [0.05, 0.05]}}, "sweep.depths", "each value once"),
+        ({"sweep": {"speeds": ["1e9"]}}, "sweep.speeds.0", "<= 20"),
+    ],
+)
+def test_duplicates_and_big_numbers_name_field_and_range(doc, field, allowed):
+    with pytest.raises(ConfigError, match=rf"config field '{field}'.*allowed: {allowed}"):
+        load_config(doc)
+
+
+def test_numbers_in_exponent_form_are_numbers(tmp_path):
+    """YAML 1.1 (PyYAML, Snakemake) reads 1e0 as a string; a user means a number."""
+    path = tmp_path / "c.yaml"
+    path.write_text("solver: {dt: 1E-2}\nsweep: {speeds: [1e0, 15e-1]}\n")
+    cfg = load_config(path)
+    assert cfg["sweep"]["speeds"] == [1.0, 1.5] and cfg["solver"]["dt"] == 0.01
+    assert (
+        load_config({"seed": 3, "mlflow": {"experiment": "1e3"}})["mlflow"]["experiment"] == "1e3"
+    )
+
+
+def test_held_out_point_on_the_training_grid_is_refused_by_config():
+    held = [{"scenario": "hill", "speed": 1, "depth": 0.1}]  # 1 and 1.0 are one point
+    with pytest.raises(ConfigError, match=r"'sweep.extrapolation.0'.*already in the sweep grid"):
+        load_config({"sweep": {"speeds": [1.0], "depths": [0.1], "extrapolation": held}})
+
+
+@pytest.mark.parametrize(
+    ("sweep", "field"),
+    [
+        ({"depths": [0.05, 0.2]}, "sweep.depths.1"),
+        (
+            {"depths": [0.05], "interpolation": [{"scenario": "step", "speed": 1.2, "depth": 0.4}]},
+            "sweep.interpolation.0.depth",
+        ),
+    ],
+)
+def test_cuts_deeper_than_the_bed_are_refused(sweep, field):
+    doc = {
+        "bed": {"radius": 0.025},
+        "scenarios": {
+            "hill": {"base_height": 0.1, "goal_height": 0.24},
+            "step": {"low_height": 0.35, "goal_height": 0.3},
+        },
+        "sweep": sweep,
+    }
+    hill = field == "sweep.depths.1"
+    level, low = ("0.24", "base_height 0.1") if hill else ("0.35", "low_height 0.35")
+    with pytest.raises(ConfigError) as exc:
+        load_config(doc)
+    assert f"config field '{field}'" in str(exc.value)
+    assert f"at least {level} m high" in str(exc.value) and low in str(exc.value)
+    assert "allowed: depth <= " in str(exc.value)
+    doc["sweep"] = {"depths": [0.05, 0.19]}
+    load_config(doc)  # a grain diameter (0.05 m) above the ground at the lowest cut: accepted
+
+
+def test_jobs_larger_than_the_machine_are_refused_with_the_figure():
+    with pytest.raises(ConfigError, match=r"sampling.bins .* about 1.15e\+03 GiB.*bins \[1024"):
+        load_config({"sampling": {"bins": [1024, 1024, 1024]}})
+    cfg = load_config("config/quick.yaml")
+    check_memory(cfg, available=2**40)
+    with pytest.raises(ConfigError, match=r"a train job would need about .* GiB"):
+        check_memory(cfg, available=2**20)
+    assert memory_estimate(cfg)["train"] > memory_estimate(cfg)["simulate"]
+
+
+def test_config_command_names_bad_yaml_and_leaks_without_traceback(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sweep: {speeds: [1.0, 2.0}\n")
+    assert main(["config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"configuration file {bad} is not valid YAML" in err and "Traceback" not in err
+    leak = tmp_path / "leak.yaml"
+    leak.write_text(
+        "sweep: {speeds: [1.0], depths: [0.1], interpolation: [{scenario: hill, speed: 1, depth: 0.1}]}\n"
+    )
+    assert main(["config", str(leak)]) == 2
+    assert "already in the sweep grid" in capsys.readouterr().err

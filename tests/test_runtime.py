@@ -1,12 +1,28 @@
-"""The process-level settings: thread budget and atomic outputs."""
+"""The process-level settings: the thread budget, atomic outputs that replace only what the same
+kind of command wrote, and jobs that stop with their workflow."""
 
 import os
+import signal
+import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
-from dozerlab.runtime import DozerlabError, atomic_output, set_threads, thread_budget
+from dozerlab.runtime import (
+    FIGURE,
+    DozerlabError,
+    OutputExistsError,
+    OutputKind,
+    atomic_output,
+    check_output,
+    die_with_workflow,
+    png_metadata,
+    process_token,
+    set_threads,
+    thread_budget,
+)
 
 
 def test_set_threads_limits_numba_torch_and_blas_in_a_fresh_process():
@@ -57,14 +73,27 @@ def test_thread_budget_reads_omp_num_threads(monkeypatch):
         assert thread_budget() == len(os.sched_getaffinity(0))
 
 
-def test_atomic_output_file_appears_only_on_success(tmp_path):
-    target = tmp_path / "sub" / "out.txt"
-    with atomic_output(target) as tmp:
-        assert tmp.parent == target.parent and tmp != target
-        tmp.write_text("done")
-        assert not target.exists()
-    assert target.read_text() == "done"
-    assert list(target.parent.iterdir()) == [target]
+TEXT = OutputKind("a test text file", lambda p: p.is_file() and p.read_text().startswith("ours"))
+
+
+def write(out, text="ours", during=lambda: None):
+    """Write ``text`` through atomic_output, calling ``during()`` before the block ends."""
+    with atomic_output(out, TEXT) as tmp:
+        tmp.write_text(text)
+        during()
+
+
+def killed():
+    raise RuntimeError("killed")
+
+
+def test_a_new_output_appears_only_on_success(tmp_path):
+    out = tmp_path / "sub" / "out.txt"
+    with pytest.raises(RuntimeError):
+        write(out, "ours, half", during=killed)
+    assert not out.exists() and not list(out.parent.iterdir())
+    write(out, "ours, whole")
+    assert out.read_text() == "ours, whole"
 
 
 def test_atomic_output_directory_store(tmp_path):
@@ -87,3 +116,143 @@ def test_atomic_output_failure_leaves_no_output_and_no_temporary(tmp_path, exc):
     with pytest.raises(type(exc)):
         _write_then_fail(tmp_path / "store.zarr", exc)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_of_the_same_kind_is_replaced(tmp_path):
+    out = tmp_path / "out.txt"
+    out.write_text("ours, old")
+    write(out, "ours, new")
+    assert out.read_text() == "ours, new"
+
+
+@pytest.mark.parametrize("foreign", ["dir", "file", "symlink"])
+def test_anything_else_is_refused_and_left_untouched(tmp_path, foreign):
+    out = tmp_path / "out.txt"
+    keep = tmp_path / "keep.txt"
+    keep.write_text("a user's data")
+    if foreign == "dir":
+        out.mkdir()
+        (out / "thesis.tex").write_text("years of work")
+    elif foreign == "file":
+        out.write_text("a user's data")
+    else:
+        out.symlink_to(keep)
+    with pytest.raises(
+        OutputExistsError, match=rf"refusing to replace {out}.*not a test text file"
+    ):
+        write(out)
+    assert keep.read_text() == "a user's data"
+    if foreign == "dir":
+        assert (out / "thesis.tex").read_text() == "years of work"
+    else:
+        assert out.read_text() == "a user's data"
+    assert not list(tmp_path.glob(".*tmp-*"))
+
+
+def test_something_appearing_during_the_work_is_not_replaced(tmp_path):
+    out = tmp_path / "out.txt"
+    with pytest.raises(OutputExistsError):
+        write(out, during=lambda: out.write_text("written meanwhile by someone else"))
+    assert out.read_text() == "written meanwhile by someone else"
+
+
+def test_without_a_kind_only_a_new_path_is_written(tmp_path):
+    out = tmp_path / "out.txt"
+    check_output(out, None)
+    out.write_text("x")
+    with pytest.raises(OutputExistsError, match="never replaced"):
+        check_output(out, None)
+
+
+def test_a_recogniser_that_fails_recognises_nothing(tmp_path):
+    def broken(path):
+        raise UnicodeDecodeError("utf-8", b"", 0, 1, "binary")
+
+    out = tmp_path / "out.bin"
+    out.write_bytes(b"\xff\xfe")
+    with pytest.raises(OutputExistsError):
+        check_output(out, OutputKind("anything", broken))
+
+
+def test_a_file_in_the_way_of_the_directory_is_refused(tmp_path):
+    (tmp_path / "plots").write_text("a file, not a directory")
+    with pytest.raises(OutputExistsError, match="in the way"):
+        write(tmp_path / "plots" / "a.txt")
+
+
+def test_figures_are_marked_and_others_pngs_are_not_replaced(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    ours, theirs = tmp_path / "ours.png", tmp_path / "theirs.png"
+    Figure().savefig(ours, format="png", metadata=png_metadata())
+    Figure().savefig(theirs, format="png")
+    check_output(ours, FIGURE)
+    with pytest.raises(OutputExistsError, match="not a PNG figure written by dozerlab"):
+        check_output(theirs, FIGURE)
+
+
+WORKFLOW = """
+import os, socket, subprocess, sys, time
+os.environ["DOZERLAB_WORKFLOW_PID"] = str(os.getpid())
+os.environ["DOZERLAB_WORKFLOW_HOST"] = socket.gethostname()
+subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]], stderr=open(sys.argv[3], "w"))
+time.sleep(120)
+"""
+JOB = """
+import sys, time
+from dozerlab.runtime import atomic_output, die_with_workflow
+assert die_with_workflow(poll_s=0.1)
+with atomic_output(sys.argv[1]) as tmp:
+    tmp.write_text("half")
+    time.sleep(120)
+"""
+
+
+def test_a_job_stops_when_its_snakemake_is_killed(tmp_path):
+    """SIGKILL reaps no children: the job notices its workflow is gone and exits cleanly."""
+    out, err = tmp_path / "out.txt", tmp_path / "job.err"
+    workflow = subprocess.Popen([sys.executable, "-c", WORKFLOW, JOB, str(out), str(err)])
+    try:
+        deadline = time.monotonic() + 60
+        while not (partial := list(tmp_path.glob(".out.txt.tmp-*"))):
+            assert time.monotonic() < deadline and workflow.poll() is None, err.read_text()
+            time.sleep(0.05)
+        job_pid = int(partial[0].name.rsplit("-", 1)[1])
+        os.kill(workflow.pid, signal.SIGKILL)
+        workflow.wait()
+        deadline = time.monotonic() + 10
+        while process_token(job_pid) is not None:
+            assert time.monotonic() < deadline, "the orphaned job runs on"
+            time.sleep(0.05)
+    finally:
+        workflow.kill()
+    assert (
+        "snakemake process" in err.read_text() and "is gone; stopping this job" in err.read_text()
+    )
+    assert not out.exists() and not list(tmp_path.glob(".*tmp-*"))  # its temporary went with it
+
+
+def test_a_job_without_a_workflow_is_not_watched(monkeypatch):
+    monkeypatch.delenv("DOZERLAB_WORKFLOW_PID", raising=False)
+    assert not die_with_workflow()
+    monkeypatch.setenv("DOZERLAB_WORKFLOW_PID", str(os.getpid()))
+    monkeypatch.setenv("DOZERLAB_WORKFLOW_HOST", "another-node")
+    assert not die_with_workflow()
+
+
+def test_temporaries_of_dead_writers_on_this_host_are_removed(tmp_path):
+    host = socket.gethostname()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / f".out.txt.tmp-{host}-{dead.pid}"
+    live = tmp_path / f".out.txt.tmp-{host}-{os.getppid()}"  # a writer still at work
+    remote = tmp_path / f".out.txt.tmp-another-node-{dead.pid}"  # cannot be checked from here
+    for p in (stale, live, remote):
+        p.mkdir()
+        (p / "part").write_text("x")
+    write(tmp_path / "out.txt")
+    assert not stale.exists() and live.exists() and remote.exists()
+    assert (tmp_path / "out.txt").read_text() == "ours"

@@ -14,6 +14,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from dozerlab import tracking
+from dozerlab.runtime import WORKFLOW_HOST_ENV, WORKFLOW_PID_ENV
 
 JOB = """
 import sys, time
@@ -203,3 +204,44 @@ def test_job_run_follows_the_configs_mlflow_section(mlflow_store):
     got = mlflow_store.get_run(run.info.run_id)
     assert mlflow_store.get_experiment(got.info.experiment_id).name == "mine"
     assert got.data.tags["rule"] == "test" and got.data.tags["model"] == "mlp"
+
+
+def _sleeper() -> subprocess.Popen:
+    """A stand-in for a Snakemake process."""
+    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+
+
+def _start_as(monkeypatch, proc: subprocess.Popen, name: str) -> str:
+    monkeypatch.setenv(WORKFLOW_PID_ENV, str(proc.pid))
+    monkeypatch.setenv(WORKFLOW_HOST_ENV, socket.gethostname())
+    run_id = tracking.start_parent_run("dozerlab", name)
+    monkeypatch.delenv(WORKFLOW_PID_ENV)
+    return run_id
+
+
+def test_the_parent_run_of_a_killed_snakemake_is_closed_as_killed(
+    mlflow_store, monkeypatch, capsys
+):
+    killed, running = _sleeper(), _sleeper()
+    try:
+        ids = {
+            name: _start_as(monkeypatch, p, name)
+            for name, p in (("killed", killed), ("running", running))
+        }
+        tags = mlflow_store.get_run(ids["killed"]).data.tags
+        assert tags[tracking.HOST_TAG] == socket.gethostname()
+        assert tags[tracking.PID_TAG] == str(killed.pid)
+        # A run of another machine cannot be checked from here: it is left alone.
+        ids["elsewhere"] = _start_as(monkeypatch, killed, "elsewhere")
+        mlflow_store.set_tag(ids["elsewhere"], tracking.HOST_TAG, "another-node")
+        os.kill(killed.pid, signal.SIGKILL)
+        killed.wait()
+        new = tracking.start_parent_run("dozerlab", "next")
+        status = {name: mlflow_store.get_run(run_id).info.status for name, run_id in ids.items()}
+        assert status == {"killed": "KILLED", "running": "RUNNING", "elsewhere": "RUNNING"}
+        assert mlflow_store.get_run(new).info.status == "RUNNING"
+        assert f"closed parent run {ids['killed']} as KILLED" in capsys.readouterr().err
+    finally:
+        for p in (killed, running):
+            p.kill()
+            p.wait()

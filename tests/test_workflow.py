@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ import xarray as xr
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
+from dozerlab.runtime import process_token
 from dozerlab.tracking import PARENT_ENV
 
 pytestmark = pytest.mark.slow
@@ -170,7 +172,10 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert len(parents) == 1
     parent = parents[0]
     assert parent.info.status == "FINISHED"
-    assert "index.html" in {a.path for a in client.list_artifacts(parent.info.run_id)}
+    artifacts = {a.path for a in client.list_artifacts(parent.info.run_id)}
+    assert "index.html" in artifacts
+    assert any(a.endswith(".snakemake.log") for a in artifacts), artifacts  # Snakemake's own log
+    assert parent.data.tags["dozerlab.host"] and parent.data.tags["dozerlab.pid"].isdigit()
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     rules = sorted(r.data.tags["rule"] for r in children)
@@ -230,34 +235,42 @@ def test_rerun_builds_nothing_and_logs_nothing(quick):
     assert len(runs(quick)[1]) == before
 
 
-def test_killed_simulation_is_redone_cleanly(quick):
-    # A point outside the configured sweep: built by asking for its path.
-    point = P.SweepPoint("hill", 1.1, 0.06)
-    store = P.field_path(quick / "results", point)
-    target = str(store.relative_to(quick))  # targets are paths relative to the working directory
-    proc = subprocess.Popen(
-        snakemake_cmd(quick, target),
+def background(workdir: Path, *args: str) -> subprocess.Popen:
+    """Snakemake started in its own process group (to signal it as a terminal would)."""
+    return subprocess.Popen(
+        snakemake_cmd(workdir, *args),
         env=clean_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
     )
+
+
+@contextmanager
+def simulating(workdir: Path, point: P.SweepPoint):
+    """Snakemake building one point's store, from the moment its simulate job writes:
+    yields (the Snakemake process, the store, the target, the simulate job's pid)."""
+    store = P.field_path(workdir / "results", point)
+    target = str(store.relative_to(workdir))  # targets are paths relative to the working directory
+    proc = background(workdir, target)
     try:
         deadline = time.monotonic() + 300
         while not (partial := list(store.parent.glob(f".{store.name}.tmp-*"))):
-            assert proc.poll() is None and time.monotonic() < deadline, (
-                "the simulation never started"
-            )
+            assert proc.poll() is None and time.monotonic() < deadline, "no simulation started"
             time.sleep(0.05)
-        os.kill(
-            int(partial[0].name.rsplit("-", 1)[1]), signal.SIGKILL
-        )  # the simulate process, mid-run
-        _, err = proc.communicate(timeout=120)
+        yield proc, store, target, int(partial[0].name.rsplit("-", 1)[1])
     finally:
         if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
+            os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def test_killed_simulation_is_redone_cleanly(quick):
+    # A point outside the configured sweep: built by asking for its path.
+    with simulating(quick, P.SweepPoint("hill", 1.1, 0.06)) as (proc, store, target, job):
+        os.kill(job, signal.SIGKILL)  # the simulate process, mid-run
+        _, err = proc.communicate(timeout=120)
     assert proc.returncode != 0, err[-3000:]
     assert not store.exists()
     _client, all_runs = runs(quick)
@@ -271,6 +284,100 @@ def test_killed_simulation_is_redone_cleanly(quick):
     ds = xr.open_zarr(store)
     assert ds.attrs["speed"] == 1.1 and ds.sizes["time"] > 0
     assert not list(store.parent.glob("*.tmp-*"))
+
+
+def _processes() -> dict[int, str]:
+    """pid -> command line of this machine's processes (from /proc)."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                found[int(entry.name)] = (
+                    (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                )
+            except OSError:
+                continue
+    return found
+
+
+def _gone(pid: int, within_s: float) -> bool:
+    deadline = time.monotonic() + within_s
+    while process_token(pid) is not None:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
+    """SIGKILL to Snakemake itself: its simulate job stops, nothing half-written stays; the lock
+    stays (Snakemake's), --unlock lifts it, and the next run closes the dead parent run."""
+    with simulating(quick, P.SweepPoint("hill", 1.2, 0.05)) as (proc, store, target, job):
+        proc.kill()  # Snakemake alone, as the OOM killer or `kill -9` would
+        proc.communicate(timeout=60)
+        assert _gone(job, within_s=20), "the simulate job runs on, orphaned"
+    assert not store.exists() and not list(store.parent.glob("*.tmp-*"))
+    client, all_runs = runs(quick)
+    dead = max(
+        (r for r in all_runs if r.data.tags.get("rule") == "workflow"),
+        key=lambda r: r.info.start_time,
+    )
+    assert dead.info.status == "RUNNING"
+
+    locked = snakemake(quick, target)
+    assert locked.returncode != 0 and "cannot be locked" in locked.stderr  # README: --unlock
+    assert snakemake(quick, "--unlock").returncode == 0
+    done = snakemake(quick, target)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert client.get_run(dead.info.run_id).info.status == "KILLED"
+    assert xr.open_zarr(store).attrs["speed"] == 1.2
+
+
+def test_ctrl_c_during_onstart_is_a_clean_message(tmp_path):
+    proc = background(tmp_path)
+    try:
+        deadline = time.monotonic() + 120
+        while not any("mlflow-start" in c for c in _processes().values()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()[-3000:]
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err[-3000:]
+    assert "interrupted while starting the MLflow parent run; no job ran" in err
+    assert "Traceback" not in err and not (tmp_path / "results").exists()
+    assert not list((tmp_path / ".snakemake" / "locks").glob("*"))  # no --unlock needed
+
+
+@pytest.mark.parametrize(
+    ("target", "message"),
+    [
+        ("results/fields/hill/speed~1_depth~0.04.zarr", "ask for speed~1.0"),
+        ("results/fields/hill/speed~1.0_depth~0.040.zarr", "ask for depth~0.04"),
+        ("results/trajectories/hill/speed~1e0_depth~0.04.csv", "ask for speed~1.0"),
+        ("results/fields/hill/speed~-1.0_depth~0.04.zarr", r"allowed: a finite number > 0 m/s"),
+        ("results/plots/hill/speed~1.0_depth~fast", r"depth 'fast' is not a number"),
+    ],
+)
+def test_a_path_spelled_otherwise_gets_the_canonical_spelling_or_the_reason(
+    tmp_path, target, message
+):
+    done = snakemake(tmp_path, "-n", target)
+    said = done.stdout + done.stderr  # a dry run reports on stdout
+    assert done.returncode != 0
+    assert re.search(message, said), said[-3000:]
+    assert "MissingRuleException" not in said
+
+
+def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):
+    """README says why rules have no conda/container directive; nothing else may be linted."""
+    done = snakemake(tmp_path, "--lint")
+    lints = re.findall(r"^\s+\* (.+?):?$", done.stdout + done.stderr, flags=re.M)
+    assert lints, (done.stdout + done.stderr)[-3000:]
+    assert set(lints) == {"Specify a conda environment or container for each rule."}
 
 
 def test_quick_config_sets_every_field_the_default_config_sets():
@@ -290,10 +397,20 @@ def test_quick_config_sets_every_field_the_default_config_sets():
     assert fields(default) <= fields(yaml.safe_load(QUICK.read_text()))
 
 
-def test_invalid_config_is_refused_before_any_job(tmp_path):
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\.0'.*allowed: >= 1"),
+        ("sweep: {speeds: [1.0, 1.0, 1]}\n", r"'sweep\.speeds'.*allowed: each value once"),
+        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\.0'.*allowed: <= 20"),
+        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\.0'.*deeper than the hill bed"),
+        ("sampling: {bins: [1024, 1024, 1024]}\n", r"sampling\.bins.*GiB of memory"),
+    ],
+)
+def test_invalid_config_is_refused_before_any_job(tmp_path, text, message):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("sampling: {bins: [0, 4, 4]}\n")
+    bad.write_text(text)
     done = snakemake(tmp_path, configfile=bad)
     assert done.returncode != 0
-    assert re.search(r"config field 'sampling\.bins\.0'.*allowed: >= 1", done.stderr)
+    assert re.search(message, done.stderr), done.stderr[-3000:]
     assert not (tmp_path / "results").exists() and not (tmp_path / "mlflow.db").exists()

@@ -19,7 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError
+from dozerlab.runtime import DozerlabError, die_with_workflow
 from dozerlab.tracking import STATUSES
 
 # The layers' command modules; each defines ``register(subparsers)`` and adds its own commands.
@@ -41,8 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_config)
 
+    # Internal (the Snakefile's hooks call them): no help= keeps them out of `dozerlab --help`.
     p = sub.add_parser(
-        "mlflow-start", help="start the parent MLflow run of a workflow; print its id"
+        "mlflow-start", description="start the parent MLflow run of a workflow; print its id"
     )
     p.add_argument(
         "--experiment",
@@ -59,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_mlflow_start)
 
     p = sub.add_parser(
-        "mlflow-end", help="end a parent MLflow run, logging the artifacts it produced"
+        "mlflow-end", description="end a parent MLflow run, logging the artifacts it produced"
     )
     p.add_argument("run_id", help="the id mlflow-start printed")
     p.add_argument("--status", default="FINISHED", choices=STATUSES)
@@ -124,8 +125,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    die_with_workflow()  # a workflow job stops when its snakemake is killed
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, DozerlabError) as exc:
         print(f"dozerlab {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"dozerlab {args.command}: interrupted", file=sys.stderr)
+        return 130

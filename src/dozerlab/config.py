@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import copy
 import json
+import math
+import os
+import re
 import warnings
 from collections.abc import Mapping
 from functools import cache
@@ -96,15 +99,128 @@ def _allowed(error: jsonschema.ValidationError) -> str:
         "minItems": f"allowed: at least {v} items",
         "maxItems": f"allowed: at most {v} items",
         "required": f"required fields: {v}",
+        "uniqueItems": "allowed: each value once",
     }.get(kind, f"constraint {kind}: {v}")
+
+
+#: A number as YAML 1.2 writes it. PyYAML (YAML 1.1, also Snakemake's loader) reads ``1e9``
+#: or ``1E-3`` (no point) as a string; :func:`validate` reads such strings as numbers where the
+#: schema asks for one.
+_YAML12_NUMBER = re.compile(r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+
+
+def _numbers(doc: Any, sch: Mapping[str, Any]) -> Any:
+    """``doc`` with number-like strings made floats wherever ``sch`` expects a number."""
+    if isinstance(doc, dict):
+        props = sch.get("properties", {})
+        return {k: _numbers(v, props[k]) if k in props else v for k, v in doc.items()}
+    if isinstance(doc, list) and isinstance(sch.get("items"), Mapping):
+        return [_numbers(v, sch["items"]) for v in doc]
+    if isinstance(doc, str) and sch.get("type") == "number" and _YAML12_NUMBER.fullmatch(doc):
+        return float(doc)
+    return doc
+
+
+#: The field holding each scenario's lowest bed level (m above the ground).
+LOWEST_LEVEL = {"hill": "base_height", "step": "low_height"}
+
+
+def check_cuts(config: Mapping[str, Any]) -> None:
+    """Refuse cut depths that reach within a grain diameter of the ground anywhere along a path.
+
+    The tip follows the bed height minus the depth wherever the bed is at or above the goal
+    height (SPEC §4), so its lowest point is (the higher of the bed's lowest level and the goal
+    height) minus the depth; a path clamped to the ground crushes grains against it and the
+    run diverges.
+    """
+    margin = 2.0 * config["bed"]["radius"]
+    sweep = config["sweep"]
+    cuts = [
+        (f"sweep.depths.{i}", s, d)
+        for s in sweep["scenarios"]
+        for i, d in enumerate(sweep["depths"])
+    ]
+    for role in ("interpolation", "extrapolation"):
+        cuts += [
+            (f"sweep.{role}.{i}.depth", p["scenario"], p["depth"])
+            for i, p in enumerate(sweep[role])
+        ]
+    for field, scenario, depth in cuts:
+        shape = config["scenarios"][scenario]
+        low = LOWEST_LEVEL[scenario]
+        level = max(shape[low], shape["goal_height"])
+        if depth > level - margin:
+            raise ConfigError(
+                f"config field '{field}': a {depth} m cut is deeper than the {scenario} bed allows: "
+                f"where the blade cuts, the bed is at least {level} m high "
+                f"(scenarios.{scenario}.{low} {shape[low]} m, goal_height {shape['goal_height']} m), and "
+                f"the tip must stay a grain diameter (2 × bed.radius = {margin:.3g} m) above the ground "
+                f"(allowed: depth <= {level - margin:.4g} m)"
+            )
+
+
+#: Bytes per bin and sampled step: velocity (3) and density (1), float32.
+_BIN_BYTES = 16
+
+
+def memory_estimate(config: Mapping[str, Any]) -> dict[str, float]:
+    """Peak memory in bytes of the largest jobs, estimated from the config alone.
+
+    ``simulate`` holds a chunk of ``sampling.chunk_steps`` steps of fields and a few steps of
+    sampling temporaries; ``train`` holds every training store whole and a concatenated copy.
+    A run's steps are at most the bed's length at the blade's speed, sampled every
+    ``sampling.every`` steps.
+    """
+    s, sweep = config["sampling"], config["sweep"]
+    cells = math.prod(s["bins"])
+    dt, length = config["solver"]["dt"], config["bed"]["length"]
+    steps = [length / (v * dt) / s["every"] for v in sweep["speeds"]]
+    runs = len(sweep["scenarios"]) * len(sweep["depths"])
+    return {
+        "simulate": (s["chunk_steps"] + 8) * cells * _BIN_BYTES,
+        "train": 2 * runs * sum(steps) * cells * _BIN_BYTES,
+    }
+
+
+def machine_memory() -> int:
+    """This machine's physical memory in bytes."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(
+    config: Mapping[str, Any],
+    available: int | None = None,
+    jobs: tuple[str, ...] = ("simulate", "train"),
+) -> None:
+    """Refuse bins and steps whose ``jobs`` would need more memory than the machine has."""
+    available = machine_memory() if available is None else available
+    fields = {
+        "simulate": "sampling.bins and sampling.chunk_steps",
+        "train": "sampling.bins and the steps per run (bed.length / (sweep.speeds × solver.dt) / "
+        "sampling.every) over the training grid",
+    }
+    for job, need in memory_estimate(config).items():
+        if job in jobs and need > available:
+            raise ConfigError(
+                f"config fields {fields[job]}: a {job} job would need about {need / 2**30:.3g} GiB of "
+                f"memory (bins {config['sampling']['bins']}), more than this machine's "
+                f"{available / 2**30:.3g} GiB (allowed: an estimate within the machine's memory)"
+            )
 
 
 def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     """Validate ``config`` and return a deep copy with every default filled in.
 
-    Raises :class:`ConfigError` naming the field (dotted path) and its allowed range.
+    Beyond the schema: cuts deeper than the beds allow (:func:`check_cuts`), jobs larger than
+    the machine's memory (:func:`check_memory`), held-out points that are training points
+    (:func:`dozerlab.sweep.sweep_points`). Numbers YAML 1.1 reads as strings (``1e9``) are
+    numbers. Raises :class:`ConfigError` naming the field (dotted path) and its allowed range.
     """
-    doc = copy.deepcopy(dict(config or {}))
+    if config is not None and not isinstance(config, Mapping):
+        raise ConfigError(
+            f"a configuration must be a mapping of sections, got {type(config).__name__}"
+        )
+    doc = _numbers(copy.deepcopy(dict(config or {})), schema())
     errors = sorted(_Validator(schema()).iter_errors(doc), key=lambda e: list(e.absolute_path))
     if errors:
         lines = []
@@ -112,6 +228,14 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
             field = ".".join(str(p) for p in e.absolute_path) or "<top level>"
             lines.append(f"config field '{field}': {e.message} ({_allowed(e)})")
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
+    # A job gets only the sections it reads (the rest are defaults): the sweep's checks apply
+    # where a sweep is given, so a default sweep never fails against a user's bed.
+    if "sweep" in (config or {}):
+        from dozerlab.sweep import sweep_points  # sweep builds on this module
+
+        sweep_points(doc)
+        check_cuts(doc)
+    check_memory(doc, jobs=("simulate", "train") if "sweep" in (config or {}) else ("simulate",))
     check_geometry(doc)
     return doc
 
@@ -133,4 +257,8 @@ def load_config(source: str | Path | Mapping[str, Any] | None = None) -> dict[st
     path = Path(text)
     if not path.is_file():
         raise ConfigError(f"configuration file not found: {path}")
-    return validate(yaml.safe_load(path.read_text()) or {})
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"configuration file {path} is not valid YAML: {exc}") from None
+    return validate(doc or {})

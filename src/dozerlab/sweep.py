@@ -20,8 +20,13 @@ import numpy as np
 from dozerlab.config import ConfigError
 
 ROLES = ("train", "interpolation", "extrapolation")
-#: What a speed or depth looks like in a path (the Snakefile's wildcard constraint).
+#: What a speed or depth looks like in a path.
 NUMBER_PATTERN = r"[0-9]+\.[0-9]+"
+#: What the Snakefile's wildcards accept as a speed or depth: any spelling, so that
+#: :func:`check_canonical` can name the right one (or the reason) instead of a missing rule.
+WILDCARD_PATTERN = r"[^_/]+"
+#: Units of the numbers in a path, for messages.
+UNITS = {"speed": "m/s", "depth": "m"}
 _POINT = re.compile(
     rf"speed~(?P<speed>{NUMBER_PATTERN})_depth~(?P<depth>{NUMBER_PATTERN})(\.[A-Za-z]+)?"
 )
@@ -44,7 +49,11 @@ def check_canonical(name: str, text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"{name} '{text}' is not a number") from None
+        raise ValueError(f"{name} '{text}' is not a number (write it like {name}~1.0)") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(
+            f"{name} '{text}' is not a {name} (allowed: a finite number > 0 {UNITS.get(name, '')})"
+        )
     if fmt_number(value) != text:
         raise ValueError(
             f"{name} '{text}' is not in canonical form; ask for {name}~{fmt_number(value)}"
@@ -74,7 +83,7 @@ class SweepPoint:
 
 def point_name(speed: float, depth: float) -> str:
     """The file stem of a sweep point, e.g. ``speed~1.0_depth~0.1``."""
-    return f"speed~{fmt_number(speed)}_depth~{fmt_number(depth)}"
+    return POINT_STEM.format(speed=fmt_number(speed), depth=fmt_number(depth))
 
 
 def parse_point(path: str | Path, role: str = "train") -> SweepPoint:
@@ -120,29 +129,84 @@ def by_role(points: Iterable[SweepPoint], role: str) -> list[SweepPoint]:
     return [p for p in points if p.role == role]
 
 
-def bed_path(results: str | Path, scenario: str) -> Path:
-    """``results/beds/{scenario}.npz``."""
-    return Path(results) / "beds" / f"{scenario}.npz"
+#: The file stem of a sweep point's outputs, with the rules' wildcards.
+POINT_STEM = "speed~{speed}_depth~{depth}"
+#: Every result path, relative to the results directory, with the rules' wildcards
+#: (``{scenario}``, ``{speed}``, ``{depth}``, ``{model}``): the rules' outputs are
+#: :func:`pattern`, and the path functions below fill the same templates.
+PATHS = {
+    "bed": "beds/{scenario}.npz",
+    "bed_plot": "beds/{scenario}.png",
+    "trajectory": f"trajectories/{{scenario}}/{POINT_STEM}.csv",
+    "trajectory_plot": f"trajectories/{{scenario}}/{POINT_STEM}.png",
+    "field": f"fields/{{scenario}}/{POINT_STEM}.zarr",
+    "field_plots": f"plots/{{scenario}}/{POINT_STEM}",
+    "simulate_benchmark": f"benchmarks/simulate/{{scenario}}/{POINT_STEM}.tsv",
+    "state": f"states/{{scenario}}/{POINT_STEM}.npz",
+    "reduced": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.zarr",
+    "reduced_state": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.npz",
+    "reduce_benchmark": f"benchmarks/reduce/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.tsv",
+    "reduced_comparison": "reduced/{dynamics_model}.json",
+    "reduced_comparison_plots": "reduced/{dynamics_model}/compare",
+    "model": "models/{model}",
+    "validation": "validation/{model}.json",
+    "validation_plots": "validation/{model}",
+    "dynamics_model": "dynamics/{model}",
+    "dynamics_validation": "dynamics/{model}.json",
+    "dynamics_plots": "dynamics/plots/{model}",
+    "report": "report/index.html",
+}
+#: The workflow's results directory (relative to its working directory).
+RESULTS = "results"
+
+
+def log_pattern(rule: str) -> str:
+    """``logs/{rule}/{scenario}/speed~{speed}_depth~{depth}.log``: a per-point job's log."""
+    return f"logs/{rule}/{{scenario}}/{POINT_STEM}.log"
+
+
+def pattern(kind: str, results: str | Path = RESULTS) -> str:
+    """The path pattern of one kind of result (a key of :data:`PATHS`), with wildcards."""
+    return f"{Path(results).as_posix()}/{PATHS[kind]}"
+
+
+def _path(kind: str, results: str | Path, point: SweepPoint | None = None, **names: str) -> Path:
+    if point is not None:
+        names |= {
+            "scenario": point.scenario,
+            "speed": fmt_number(point.speed),
+            "depth": fmt_number(point.depth),
+        }
+    return Path(results) / PATHS[kind].format(**names)
+
+
+def bed_path(results: str | Path, scenario: str, ext: str = "npz") -> Path:
+    """``results/beds/{scenario}.{ext}`` (the bed's npz or its png)."""
+    if ext not in ("npz", "png"):
+        raise ValueError(f"a bed is an npz or a png, not '{ext}'")
+    return _path("bed" if ext == "npz" else "bed_plot", results, scenario=scenario)
 
 
 def trajectory_path(results: str | Path, point: SweepPoint, ext: str = "csv") -> Path:
     """``results/trajectories/{scenario}/speed~{speed}_depth~{depth}.{ext}`` (csv or png)."""
-    return Path(results) / "trajectories" / point.scenario / f"{point.name}.{ext}"
+    if ext not in ("csv", "png"):
+        raise ValueError(f"a trajectory is a csv or a png, not '{ext}'")
+    return _path("trajectory" if ext == "csv" else "trajectory_plot", results, point)
 
 
 def field_path(results: str | Path, point: SweepPoint) -> Path:
     """``results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr``."""
-    return Path(results) / "fields" / point.scenario / f"{point.name}.zarr"
+    return _path("field", results, point)
 
 
 def simulate_benchmark_path(results: str | Path, point: SweepPoint) -> Path:
     """Snakemake's benchmark record (wall time, memory) of the point's simulation job."""
-    return Path(results) / "benchmarks" / "simulate" / point.scenario / f"{point.name}.tsv"
+    return _path("simulate_benchmark", results, point)
 
 
 def state_path(results: str | Path, point: SweepPoint) -> Path:
     """``results/states/{scenario}/speed~{speed}_depth~{depth}.npz``: NDEM's final particle state."""
-    return Path(results) / "states" / point.scenario / f"{point.name}.npz"
+    return _path("state", results, point)
 
 
 def reduced_path(
@@ -152,46 +216,42 @@ def reduced_path(
 
     ``zarr``: the reduced run's field store; ``npz``: its final particle state (a bed file).
     """
-    return Path(results) / "reduced" / dynamics_model / point.scenario / f"{point.name}.{ext}"
+    if ext not in ("zarr", "npz"):
+        raise ValueError(f"a reduced run is a zarr store or an npz state, not '{ext}'")
+    kind = "reduced" if ext == "zarr" else "reduced_state"
+    return _path(kind, results, point, dynamics_model=dynamics_model)
 
 
 def reduce_benchmark_path(results: str | Path, dynamics_model: str, point: SweepPoint) -> Path:
     """Snakemake's benchmark record (wall time, memory) of the point's reduce job."""
-    return (
-        Path(results)
-        / "benchmarks"
-        / "reduce"
-        / dynamics_model
-        / point.scenario
-        / f"{point.name}.tsv"
-    )
+    return _path("reduce_benchmark", results, point, dynamics_model=dynamics_model)
 
 
 def reduced_comparison_path(results: str | Path, dynamics_model: str) -> Path:
     """``results/reduced/{dynamics_model}.json``: the reduced runs measured against NDEM."""
-    return Path(results) / "reduced" / f"{dynamics_model}.json"
+    return _path("reduced_comparison", results, dynamics_model=dynamics_model)
 
 
 def model_path(results: str | Path, model: str) -> Path:
     """``results/models/{model}``: an MLflow pyfunc model directory."""
-    return Path(results) / "models" / model
+    return _path("model", results, model=model)
 
 
 def validation_path(results: str | Path, model: str) -> Path:
     """``results/validation/{model}.json``: held-out metrics of one model."""
-    return Path(results) / "validation" / f"{model}.json"
+    return _path("validation", results, model=model)
 
 
 def dynamics_model_path(results: str | Path, model: str) -> Path:
     """``results/dynamics/{model}``: an evolution model's MLflow pyfunc directory."""
-    return Path(results) / "dynamics" / model
+    return _path("dynamics_model", results, model=model)
 
 
 def dynamics_validation_path(results: str | Path, model: str) -> Path:
     """``results/dynamics/{model}.json``: held-out one-step and rollout metrics of one evolution model."""
-    return Path(results) / "dynamics" / f"{model}.json"
+    return _path("dynamics_validation", results, model=model)
 
 
 def dynamics_plots_path(results: str | Path, model: str) -> Path:
     """``results/dynamics/plots/{model}``: the figures of that validation."""
-    return Path(results) / "dynamics" / "plots" / model
+    return _path("dynamics_plots", results, model=model)

@@ -15,12 +15,18 @@ before any job does, so the experiment and a fresh SQLite store are created once
 parallel jobs; it exports the run id as ``DOZERLAB_PARENT_RUN_ID``. ``onsuccess`` / ``onerror``
 end it FINISHED / FAILED (:func:`end_parent_run`, ``dozerlab mlflow-end``) and attach the
 artifacts (the report, Snakemake's log) that this invocation wrote.
+
+A Snakemake killed outright (SIGKILL, a lost node) ends nothing: its run would stay RUNNING.
+So the parent run carries the workflow process's host, pid and start time as tags, and the next
+``mlflow-start`` closes, as KILLED, every RUNNING parent run whose process on this host is gone.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
+import socket
+import sys
 import time
 import urllib.error
 import urllib.request
@@ -29,10 +35,16 @@ from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
+from dozerlab.runtime import process_token, workflow_process
+
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
+#: ``0`` turns tracking off (``mlflow.enabled: false`` in the workflow).
+ENABLED_ENV = "DOZERLAB_MLFLOW"
 DEFAULT_URI = "sqlite:///mlflow.db"
 #: How a parent run may end (``dozerlab mlflow-end --status``).
 STATUSES = ("FINISHED", "FAILED", "KILLED")
+#: Tags naming the workflow process of a parent run (see the module docstring).
+HOST_TAG, PID_TAG, TOKEN_TAG = "dozerlab.host", "dozerlab.pid", "dozerlab.pid_start"
 WAIT_ENV = "DOZERLAB_MLFLOW_WAIT"
 DEFAULT_WAIT_S = 120.0
 MAX_WAIT_S = 86400.0
@@ -44,7 +56,7 @@ class TrackingServerUnreachable(RuntimeError):
 
 def enabled() -> bool:
     """Whether jobs log to MLflow (``DOZERLAB_MLFLOW`` is not ``0``)."""
-    return os.environ.get("DOZERLAB_MLFLOW", "1") != "0"
+    return os.environ.get(ENABLED_ENV, "1") != "0"
 
 
 @contextmanager
@@ -193,6 +205,29 @@ def job_run(
     return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment)
 
 
+def close_stale_runs(client: Any, experiment_id: str) -> list[str]:
+    """End as KILLED the RUNNING parent runs whose workflow process on this host is gone.
+
+    Runs of other hosts, and runs without the process tags, are left alone (their process
+    cannot be checked from here). Returns the ids closed.
+    """
+    runs = client.search_runs(
+        [experiment_id],
+        filter_string="tags.rule = 'workflow' and attributes.status = 'RUNNING'",
+        max_results=1000,
+    )
+    closed = []
+    for run in runs:
+        tags = run.data.tags
+        if tags.get(HOST_TAG) != socket.gethostname() or not tags.get(PID_TAG, "").isdigit():
+            continue
+        if process_token(int(tags[PID_TAG])) != tags.get(TOKEN_TAG):
+            client.set_tag(run.info.run_id, "dozerlab.closed", "its snakemake process was gone")
+            client.set_terminated(run.info.run_id, status="KILLED")
+            closed.append(run.info.run_id)
+    return closed
+
+
 def start_parent_run(
     experiment: str,
     name: str,
@@ -202,6 +237,8 @@ def start_parent_run(
 ) -> str:
     """Create the experiment if needed and a RUNNING parent run in it; return the run id.
 
+    First closes the stale parent runs of this host (:func:`close_stale_runs`); the new run is
+    tagged with the workflow's process (``DOZERLAB_WORKFLOW_PID``) when it runs on this host.
     ``config`` (the validated config) is logged flattened as the run's params. When
     ``DOZERLAB_PARENT_RUN_ID`` is already set (the workflow itself runs inside a tracked run),
     the new run is nested under that one.
@@ -211,7 +248,13 @@ def start_parent_run(
 
     experiment_id = configure(experiment)
     client = MlflowClient()
+    for run_id in close_stale_runs(client, experiment_id):
+        print(
+            f"closed parent run {run_id} as KILLED: its snakemake process is gone", file=sys.stderr
+        )
     all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
+    if (proc := workflow_process()) is not None:
+        all_tags |= {HOST_TAG: socket.gethostname(), PID_TAG: str(proc[0]), TOKEN_TAG: proc[1]}
     outer = os.environ.get(PARENT_ENV)
     if outer:
         all_tags["mlflow.parentRunId"] = outer

@@ -75,3 +75,18 @@ def test_inconsistent_file_is_refused(tmp_path, legacy_file):
     with pytest.raises(ValueError, match=f"step 10 \\(byte offset {HEADER_BYTES + 10 * record}\\)"):
         import_legacy(bad_time, tmp_path / "y.zarr")
     assert not (tmp_path / "x.zarr").exists() and not (tmp_path / "y.zarr").exists()
+
+
+def test_nan_cells_and_header_only_files_are_refused(tmp_path, legacy_file):
+    raw = bytearray(legacy_file.read_bytes())
+    record = 4 * (10 + 4 * 24)
+    cell = HEADER_BYTES + 5 * record + 4 * (10 + 4 * 7 + 3)  # step 5, bin 7's density
+    raw[cell : cell + 4] = np.array([np.nan], "<f4").tobytes()
+    (tmp_path / "nan.bin").write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=r"step 5 .* NaN/inf in cells at bin \(1, 0, 1\)"):
+        import_legacy(tmp_path / "nan.bin", tmp_path / "nan.zarr")
+    assert not (tmp_path / "nan.zarr").exists()
+    (tmp_path / "empty.bin").write_bytes(bytes(raw[:HEADER_BYTES]))
+    with pytest.raises(ValueError, match=r"header .* but no steps"):
+        import_legacy(tmp_path / "empty.bin", tmp_path / "empty.zarr")
+    assert not (tmp_path / "empty.zarr").exists()

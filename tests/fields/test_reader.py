@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import zarr
 
-from dozerlab.fields.reader import read_field
+from dozerlab.fields.reader import DamagedStoreError, missing_pieces, read_field
 from dozerlab.fields.store import write_store
 
 WINDOWS = [
@@ -39,7 +39,10 @@ def test_read_field_equals_zarr(tmp_path, store_arrays, codec, threads):
     np.testing.assert_array_equal(read_field(path, "velocity"), store_arrays["velocity"])
 
 
-def test_unwritten_inner_chunks_read_as_fill(tmp_path):
+@pytest.mark.parametrize("compressors", [None, "auto"], ids=["fast path", "through zarr"])
+def test_unwritten_chunks_are_refused_not_read_as_fill(tmp_path, compressors):
+    """zarr reads an absent chunk as its fill value; our stores write every chunk, so an absent
+    one is damage (a lost file), named with its steps."""
     arr = zarr.create_array(
         tmp_path / "a",
         shape=(20, 2, 3),
@@ -47,10 +50,23 @@ def test_unwritten_inner_chunks_read_as_fill(tmp_path):
         chunks=(4, 2, 3),
         dtype="f4",
         fill_value=0.0,
+        compressors=compressors,
     )
     arr[9:11] = 5.0  # touches inner chunks 2 and 3 only; the rest of the shards stay unwritten
-    np.testing.assert_array_equal(read_field(tmp_path, "a"), arr[:])
-    np.testing.assert_array_equal(read_field(tmp_path, "a", 2, 14), arr[2:14])
+    with pytest.raises(DamagedStoreError, match=r"array 'a' is damaged.*(steps 0-7|steps 12-15)"):
+        read_field(tmp_path, "a")
+    missing = missing_pieces(tmp_path, "a")
+    assert "chunk c/0/0/0 (steps 0-7)" in missing
+    if compressors is None:  # inner chunks are checked in this package's layout
+        assert "inner chunk 1 of shard c/1/0/0 (steps 12-15)" in missing
+
+
+def test_nan_in_a_field_is_refused_naming_the_step(tmp_path, store_arrays):
+    store_arrays["density"][33, 1, 2, 0] = np.nan
+    path = write_store(tmp_path / "f.zarr", chunk_steps=16, **store_arrays)
+    with pytest.raises(DamagedStoreError, match=r"array 'density'.*NaN/inf.*step 33"):
+        read_field(path, "density")
+    np.testing.assert_array_equal(read_field(path, "density", 0, 32), store_arrays["density"][:32])
 
 
 def test_corrupt_shard_index_is_refused(tmp_path, store_arrays):

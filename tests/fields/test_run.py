@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dozerlab.cli import main
-from dozerlab.fields.store import open_store
+from dozerlab.fields.store import FIELD_STORE, open_store
 from tests.helpers import TINY_RUN as CONFIG
 from tests.helpers import write_tiny_run
 
@@ -41,6 +41,13 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
         str(tmp / "plots"),
         "--state",
         str(tmp / "final.npz"),
+        # the labels are passed (the workflow passes its sweep point's), never parsed from names
+        "--scenario",
+        "hill",
+        "--speed",
+        "0.5",
+        "--depth",
+        "0.06",
     ]
     assert main(argv) == 0
     from dozerlab.scenarios.bed import Bed
@@ -66,6 +73,10 @@ def test_simulate_writes_a_store_with_fields_forces_and_attrs(inputs):
     assert force[len(force) // 2 :, 0].mean() < 0
     assert len(list((tmp / "vtk").glob("particles_*.vtu"))) == traj.steps // 10
     assert {"force.png", "slice_000000.png"} <= {p.name for p in (tmp / "plots").iterdir()}
+    # A rerun replaces the store, snapshots and plots it wrote (each recognised as ours).
+    assert FIELD_STORE.recognise(out)
+    assert main(argv) == 0
+    assert open_store(out).sizes["time"] == traj.steps // 2
 
 
 @pytest.mark.parametrize(
@@ -95,3 +106,18 @@ def test_bad_runs_are_refused_without_store(inputs, capsys, section, message):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
     assert not (tmp / "g.zarr").exists()
+
+
+def test_labels_come_from_arguments_not_file_names(inputs):
+    import json
+    import shutil
+
+    tmp, _bed, traj = inputs
+    renamed = tmp / "speed~9.0_depth~9.0.csv"  # a misleading name is not read
+    shutil.copy(tmp / "speed~0.5_depth~0.06.csv", renamed)
+    out = tmp / "unlabelled.zarr"
+    argv = ["simulate", "--bed", str(tmp / "bed.npz"), "--trajectory", str(renamed)]
+    assert main([*argv, "--config", json.dumps(CONFIG), "--out", str(out)]) == 0
+    ds = open_store(out)
+    assert ds.attrs["scenario"] == "hill" and ds.attrs["depth"] is None
+    assert ds.attrs["speed"] == pytest.approx(traj.speed)

@@ -7,7 +7,9 @@ import pytest
 import xarray as xr
 import zarr
 
+from dozerlab.fields.reader import DamagedStoreError
 from dozerlab.fields.store import SCHEMA, FieldStoreWriter, open_store, write_store
+from dozerlab.learn.data import load_store
 
 
 def test_store_round_trip_opens_in_xarray_with_documented_names(tmp_path, store_arrays):
@@ -81,3 +83,45 @@ def test_open_store_names_what_is_missing(tmp_path, store_arrays):
     ds.to_zarr(tmp_path / "g.zarr", zarr_format=3, consolidated=True)
     with pytest.raises(ValueError, match=r"missing variable 'force'.*missing variable 'torque'"):
         open_store(tmp_path / "g.zarr")
+
+
+@pytest.mark.parametrize(
+    ("name", "chunk"),
+    [
+        ("velocity", "c/1/0/0/0/0"),
+        ("density", "c/0/0/0/0"),
+        ("force", "c/2/0"),
+        ("blade_position", "c/0/0"),
+        ("time", "c/1"),
+    ],
+)
+def test_a_lost_chunk_is_refused_naming_array_and_piece(tmp_path, store_arrays, name, chunk):
+    """zarr would read the lost chunk as zeros (its fill value); the store refuses to open."""
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    (path / name / chunk).unlink()
+    with pytest.raises(DamagedStoreError, match=rf"damaged.*array '{name}': chunk {chunk} \(steps"):
+        open_store(path)
+    with pytest.raises(DamagedStoreError, match=f"array '{name}'"):
+        load_store(path)
+
+
+def test_empty_chunks_are_written_so_zeros_are_not_damage(tmp_path, store_arrays):
+    store_arrays["force"][:40] = 0.0  # the blade before it meets the bed
+    store_arrays["density"][:] = 0.0
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    ds = open_store(path)
+    assert not ds["force"].values[:32].any()
+    assert (path / "force" / "c" / "0" / "0").is_file()
+
+
+def test_time_must_increase_and_series_be_finite(tmp_path, store_arrays):
+    a = dict(store_arrays, time=store_arrays["time"].copy())
+    a["time"][40] = a["time"][39]
+    with pytest.raises(DamagedStoreError, match=r"'time' is not strictly increasing: step 40"):
+        open_store(write_store(tmp_path / "t.zarr", **a))
+    a = dict(store_arrays, torque=store_arrays["torque"].copy())
+    a["torque"][12, 2] = np.inf
+    with pytest.raises(
+        DamagedStoreError, match=r"'torque' holds 1 NaN/inf value\(s\), first at step 12"
+    ):
+        open_store(write_store(tmp_path / "q.zarr", **a))

@@ -80,3 +80,14 @@ def test_missing_array_is_named(store_files, tmp_path):
     xr.open_zarr(store_files["train"][0]).drop_vars("force").to_zarr(broken)
     with pytest.raises(ValueError, match="force"):
         load_store(broken)
+
+
+def test_stores_of_other_bin_sizes_are_refused(store_files):
+    a, b = (load_store(p) for p in store_files["train"][:2])
+    assert a.bin_size == (0.1, 0.1, 0.1)
+    assert check_grid([a, b], a.grid, [0.1, 0.1, 0.1]) == a.grid
+    b.bin_size = (0.1, 0.12, 0.1)  # same counts over a wider volume
+    with pytest.raises(DozerlabError, match=r"bins of \[0.1, 0.12, 0.1\] m but the model expects"):
+        check_grid([a, b])
+    with pytest.raises(DozerlabError, match="bins of"):
+        check_grid([a], a.grid, [0.2, 0.1, 0.1])

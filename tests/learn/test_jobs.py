@@ -7,7 +7,7 @@ import pytest
 from dozerlab.cli import main
 from dozerlab.learn import pyfunc
 from dozerlab.learn.data import load_store
-from dozerlab.learn.jobs import train_job
+from dozerlab.learn.jobs import VALIDATION_HTML, VALIDATION_JSON, train_job
 from dozerlab.runtime import DozerlabError
 
 
@@ -64,6 +64,7 @@ def test_cli_train_validate_evaluate(tracking, store_files, capsys):
         )
         == 0
     )
+    assert pyfunc.MODEL_DIR.recognise(out)  # so a rerun may replace it
     report = tracking / "validation" / "linear.json"
     argv = [
         "validate",
@@ -85,6 +86,9 @@ def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     assert (report.parent / result["plots"]["parity"]).is_file()
     assert result["training"]["epochs"] == 1  # the closed-form ridge
     assert (tracking / "validation" / "linear" / "interpolation_00.png").is_file()
+    assert VALIDATION_JSON.recognise(report) and VALIDATION_HTML.recognise(
+        report.with_suffix(".html")
+    )
     assert main(["evaluate", "--model", str(out), str(store_files["interpolation"][0])]) == 0
     assert "overall" in capsys.readouterr().out
     # A store of another grid, and a held-out point that was a training point, fail clearly.

@@ -5,7 +5,7 @@ import pytest
 
 from dozerlab.config import load_config
 from dozerlab.ndem import DivergenceError, StepStats, World
-from dozerlab.runtime import DozerlabError
+from dozerlab.runtime import DozerlabError, OutputExistsError
 
 
 def _grid(n: int, r: float = 0.05, z0: float = 0.06) -> np.ndarray:
@@ -102,6 +102,20 @@ def test_save_and_load_round_trip(tmp_path):
     v.step(3)
     np.testing.assert_array_equal(v.positions, w.positions)
     np.testing.assert_array_equal(v.body_position(blade), w.body_position(blade))
+
+
+def test_save_replaces_a_world_file_and_refuses_anything_else(tmp_path):
+    w = World(iterations=20)
+    w.add_spheres(_grid(8), radius=0.05)
+    path, other = tmp_path / "state.npz", tmp_path / "notes.npz"
+    w.save(path)
+    w.step(2)
+    w.save(path)  # its own earlier file (persist.WORLD_FILE) is replaced
+    assert World.load(path).time == w.time
+    other.write_text("a user's file")
+    with pytest.raises(OutputExistsError, match="not a dozerlab World file"):
+        w.save(other)
+    assert other.read_text() == "a user's file"
 
 
 def test_from_config_reads_solver_and_material():

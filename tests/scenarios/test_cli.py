@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from dozerlab.cli import main
-from dozerlab.scenarios.bed import Bed
+from dozerlab.runtime import FIGURE
+from dozerlab.scenarios.bed import BED_FILE, Bed
 from dozerlab.scenarios.trajectory import Trajectory
 
 TINY = {
@@ -42,6 +43,8 @@ def test_bed_command_writes_bed_and_plot(tmp_path, capsys):
     bed = Bed.load(out)
     assert bed.scenario == "step" and bed.count > 10 and bed.settle_time.size > 0
     assert png.read_bytes()[:4] == b"\x89PNG"
+    # what a rerun may replace (runtime.atomic_output): the bed and figure are recognised as ours
+    assert BED_FILE.recognise(out) and FIGURE.recognise(png)
 
 
 def test_trajectory_command_writes_csv_and_plot(step_bed, tmp_path):

@@ -5,10 +5,13 @@
 import json
 import os
 import shlex
+import socket
 import subprocess
 import sys
 
-from dozerlab import cluster, tracking
+from snakemake.exceptions import WorkflowError
+
+from dozerlab import cluster, runtime, tracking
 from dozerlab.config import load_config, schema
 from dozerlab import sweep as P
 
@@ -16,16 +19,24 @@ from dozerlab import sweep as P
 config.update(load_config(config))
 POINTS = P.sweep_points(config)
 HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
-RESULTS = "results"
+RESULTS = P.RESULTS
 if not config["mlflow"]["enabled"]:
-    os.environ["DOZERLAB_MLFLOW"] = "0"  # the jobs' tracked_run reads this
+    os.environ[tracking.ENABLED_ENV] = "0"  # the jobs' tracked_run reads this
+# The jobs stop when this process is gone (runtime.die_with_workflow): a SIGKILLed Snakemake
+# leaves no orphaned job running. A job run by a remote executor parses this file in its own
+# Snakemake and watches that one.
+os.environ[runtime.WORKFLOW_PID_ENV] = str(os.getpid())
+os.environ[runtime.WORKFLOW_HOST_ENV] = socket.gethostname()
 
 # Any point can be built by asking for its path, in the sweep or not; numbers are plain
-# decimals with a point (P.fmt_number), so a path names one run only.
+# decimals with a point (P.fmt_number), so a path names one run only. The constraint on speed
+# and depth is loose on purpose: any spelling reaches the rules, whose input function
+# `canonical` refuses it with the canonical spelling or the reason (a tight pattern would give
+# Snakemake's MissingRuleException, which says neither).
 wildcard_constraints:
     scenario="|".join(schema()["properties"]["sweep"]["properties"]["scenarios"]["items"]["enum"]),
-    speed=P.NUMBER_PATTERN,
-    depth=P.NUMBER_PATTERN,
+    speed=P.WILDCARD_PATTERN,
+    depth=P.WILDCARD_PATTERN,
     model="[a-z]+",
     dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
@@ -111,7 +122,7 @@ def all_targets():
     targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
     targets += reduced_comparisons()
-    targets.append(f"{RESULTS}/report/index.html")
+    targets.append(P.pattern("report"))
     return targets
 
 
@@ -143,16 +154,28 @@ def start_parent_run():
         return
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-start", "--config", json.dumps(config),
            "--name", "workflow", "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
-    run_id = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True).stdout.strip()
-    os.environ[tracking.PARENT_ENV] = run_id
+    try:
+        # In its own session: Ctrl-C reaches Snakemake alone, which stops the command below.
+        done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    except KeyboardInterrupt:
+        # Before any job: say so and stop (SystemExit: no traceback, Snakemake's lock released).
+        print("dozerlab: interrupted while starting the MLflow parent run; no job ran", file=sys.stderr)
+        sys.exit(130)
+    if done.returncode != 0:
+        raise WorkflowError(f"dozerlab mlflow-start failed (exit {done.returncode}); see the message above")
+    os.environ[tracking.PARENT_ENV] = done.stdout.strip()
 
 
 def end_parent_run(status, log):
-    """End the parent run with ``status``, attaching the report and Snakemake's log if new."""
+    """End the parent run with ``status``, attaching the report and Snakemake's log if new.
+
+    Snakemake 9 passes ``log`` as the list of its log files (a path in older versions).
+    """
     run_id = os.environ.get(tracking.PARENT_ENV)
     if not tracking.enabled() or not run_id:
         return
-    artifacts = [f"{RESULTS}/report/index.html"] + ([str(log)] if log else [])
+    logs = [log] if isinstance(log, (str, os.PathLike)) else list(log or [])
+    artifacts = [P.pattern("report")] + [str(p) for p in logs]
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]

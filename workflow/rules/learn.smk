@@ -5,7 +5,7 @@ rule train:
     input:
         fields_of("train"),
     output:
-        directory("results/models/{model}"),
+        directory(P.pattern("model")),
     log:
         "logs/train/{model}.log",
     threads: config["threads"]["train"]
@@ -20,12 +20,12 @@ rule train:
 
 rule validate:
     input:
-        model="results/models/{model}",
+        model=P.pattern("model"),
         interpolation=fields_of("interpolation"),
         extrapolation=fields_of("extrapolation"),
     output:
-        json="results/validation/{model}.json",
-        plots=directory("results/validation/{model}"),
+        json=P.pattern("validation"),
+        plots=directory(P.pattern("validation_plots")),
     log:
         "logs/validate/{model}.log",
     threads: 1

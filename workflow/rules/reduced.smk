@@ -4,17 +4,17 @@
 rule reduce:
     input:
         canonical,
-        bed="results/beds/{scenario}.npz",
-        trajectory="results/trajectories/{scenario}/speed~{speed}_depth~{depth}.csv",
+        bed=P.pattern("bed"),
+        trajectory=P.pattern("trajectory"),
         # the NDEM run of the point: replay's fields, and the run the reduced one is aligned with
-        ndem="results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr",
+        ndem=P.pattern("field"),
         force_model=lambda wc: str(P.model_path(RESULTS, config["reduced"]["force_model"])),
         dynamics=dynamics_input,
     output:
-        store=directory("results/reduced/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.zarr"),
-        state="results/reduced/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.npz",
+        store=directory(P.pattern("reduced")),
+        state=P.pattern("reduced_state"),
     benchmark:
-        "results/benchmarks/reduce/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.tsv"
+        P.pattern("reduce_benchmark")
     log:
         "logs/reduce/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.log",
     # the NDEM run's threads: the speed-up compares the two at the same thread count
@@ -25,7 +25,6 @@ rule reduce:
         cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
         dynamics=lambda wc, input: input.dynamics or "replay",
     shell:
-        'rm -rf "$(dirname {output.store:q})"/."$(basename {output.store:q})".tmp-*; '
         "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce --bed {input.bed:q} --trajectory {input.trajectory:q}"
         " --dynamics {params.dynamics:q} --ndem {input.ndem:q} --force-model {input.force_model:q}"
         " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads}"
@@ -38,8 +37,8 @@ rule compare_reduced:
         ndem=[str(P.field_path(RESULTS, p)) for p in HELD_OUT],
         states=[str(P.state_path(RESULTS, p)) for p in HELD_OUT],
     output:
-        json="results/reduced/{dynamics_model}.json",
-        plots=directory("results/reduced/{dynamics_model}/compare"),
+        json=P.pattern("reduced_comparison"),
+        plots=directory(P.pattern("reduced_comparison_plots")),
     log:
         "logs/compare_reduced/{dynamics_model}.log",
     resources:
@@ -49,4 +48,4 @@ rule compare_reduced:
         cfg=lambda wc: config_json("solver", "material", "blade", "trajectory", "sweep", "reduced", "mlflow"),
     shell:
         "python -m dozerlab compare-reduced --dynamics-model {wildcards.dynamics_model} --config {params.cfg:q}"
-        " --results results --out {output.json:q} --plots {output.plots:q} > {log:q} 2>&1"
+        " --results {RESULTS} --out {output.json:q} --plots {output.plots:q} > {log:q} 2>&1"

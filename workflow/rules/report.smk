@@ -9,7 +9,7 @@ rule report:
         reduced=reduced_comparisons(),
         dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
     output:
-        report("results/report/index.html", caption="../report/index.rst", category="Report"),
+        report(P.pattern("report"), caption="../report/index.rst", category="Report"),
     log:
         "logs/report.log",
     threads: 1
@@ -18,4 +18,4 @@ rule report:
     params:
         cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report", "reduced"),
     shell:
-        "python -m dozerlab report --config {params.cfg:q} --results results --out {output:q} > {log:q} 2>&1"
+        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} > {log:q} 2>&1" % P.RESULTS

@@ -3,8 +3,8 @@
 
 rule bed:
     output:
-        bed="results/beds/{scenario}.npz",
-        plot=report("results/beds/{scenario}.png", caption="../report/bed.rst", category="Beds"),
+        bed=P.pattern("bed"),
+        plot=report(P.pattern("bed_plot"), caption="../report/bed.rst", category="Beds"),
     log:
         "logs/bed/{scenario}.log",
     threads: config["threads"]["bed"]
@@ -20,18 +20,18 @@ rule bed:
 rule trajectory:
     input:
         canonical,
-        bed="results/beds/{scenario}.npz",
+        bed=P.pattern("bed"),
     output:
-        csv="results/trajectories/{scenario}/speed~{speed}_depth~{depth}.csv",
+        csv=P.pattern("trajectory"),
         plot=report(
-            "results/trajectories/{scenario}/speed~{speed}_depth~{depth}.png",
+            P.pattern("trajectory_plot"),
             caption="../report/trajectory.rst",
             category="Trajectories",
             subcategory="{scenario}",
             labels={"speed (m/s)": "{speed}", "depth (m)": "{depth}"},
         ),
     log:
-        "logs/trajectory/{scenario}/speed~{speed}_depth~{depth}.log",
+        P.log_pattern("trajectory"),
     threads: 1
     resources:
         **cluster.job_resources(config, "trajectory"),

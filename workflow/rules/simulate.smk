@@ -4,17 +4,17 @@
 rule simulate:
     input:
         canonical,
-        bed="results/beds/{scenario}.npz",
-        trajectory="results/trajectories/{scenario}/speed~{speed}_depth~{depth}.csv",
+        bed=P.pattern("bed"),
+        trajectory=P.pattern("trajectory"),
     output:
         # A directory: Snakemake removes it if the job fails; the command builds it in a
         # temporary sibling and renames it when complete, so a killed job leaves no store.
-        store=directory("results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr"),
-        state="results/states/{scenario}/speed~{speed}_depth~{depth}.npz",
+        store=directory(P.pattern("field")),
+        state=P.pattern("state"),
     benchmark:
-        "results/benchmarks/simulate/{scenario}/speed~{speed}_depth~{depth}.tsv"
+        P.pattern("simulate_benchmark")
     log:
-        "logs/simulate/{scenario}/speed~{speed}_depth~{depth}.log",
+        P.log_pattern("simulate"),
     threads: config["threads"]["simulate"]
     resources:
         **cluster.job_resources(config, "simulate"),
@@ -23,9 +23,8 @@ rule simulate:
             "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
         ),
     shell:
-        # Temporaries of a killed earlier attempt (runtime.atomic_output's .NAME.tmp-PID) go first.
-        'rm -rf "$(dirname {output.store:q})"/."$(basename {output.store:q})".tmp-*; '
         "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
+        " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth}"
         " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads} > {log:q} 2>&1"
 
 
@@ -33,11 +32,11 @@ rule simulate:
 rule plot_fields:
     input:
         canonical,
-        store="results/fields/{scenario}/speed~{speed}_depth~{depth}.zarr",
+        store=P.pattern("field"),
     output:
-        directory("results/plots/{scenario}/speed~{speed}_depth~{depth}"),
+        directory(P.pattern("field_plots")),
     log:
-        "logs/plot_fields/{scenario}/speed~{speed}_depth~{depth}.log",
+        P.log_pattern("plot_fields"),
     threads: 1
     resources:
         **cluster.job_resources(config, "plot_fields"),

@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--depth",
         type=float,
         default=None,
-        help="label in m (default: depth~D in the trajectory's name)",
+        help="label in m (default: none; the workflow passes its sweep point's)",
     )
     p.set_defaults(func=_simulate)
 

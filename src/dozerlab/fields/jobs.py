@@ -9,22 +9,16 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 from pathlib import Path
 from typing import Any
 
 from dozerlab import __version__
 from dozerlab.fields.run import drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.fields.store import open_store
+from dozerlab.fields.store import FIELD_STORE, open_store
+from dozerlab.runtime import check_output
 
 log = logging.getLogger(__name__)
-
-
-def _from_name(path: Path, key: str) -> float | None:
-    """A ``key~value`` number in a workflow file name such as ``speed~1.0_depth~0.1.csv``."""
-    m = re.search(rf"{key}~([0-9.eE+-]+?)(?:_|\.csv$|$)", path.name)
-    return float(m.group(1)) if m else None
 
 
 def simulate(
@@ -43,24 +37,24 @@ def simulate(
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
-    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (defaults:
-    the bed's scenario, the trajectory's speed, and ``speed~``/``depth~`` in the trajectory's file
-    name). VTK snapshots go to ``vtk_dir`` every ``sampling.vtk_every`` steps (when both are set);
-    slice and force plots of the store to ``plots_dir`` and to MLflow; the final particle state
-    to ``state_out`` (a bed file, ``Bed.load`` reads it) when given. The store's ``wall_time_s``
-    attribute is the stepping loop's wall time (s). Raises :class:`DozerlabError` when the
+    ``config`` is a validated config. ``scenario``/``speed``/``depth`` label the store (the
+    workflow passes its sweep point's; defaults: the bed's scenario, the trajectory's speed, no
+    depth). File names are never parsed for them. VTK snapshots go to ``vtk_dir`` every
+    ``sampling.vtk_every`` steps (when both are set); slice and force plots of the store to
+    ``plots_dir`` and to MLflow; the final particle state to ``state_out`` (a bed file,
+    ``Bed.load`` reads it) when given. The store's ``wall_time_s`` attribute is the stepping
+    loop's wall time (s). Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
     from dozerlab import tracking
+    from dozerlab.scenarios.bed import BED_FILE
 
+    check_output(out, FIELD_STORE)  # before the run, not after it
+    if state_out is not None:
+        check_output(state_out, BED_FILE)
     bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     scenario = scenario or bed.scenario
-    speed = (
-        speed
-        if speed is not None
-        else _from_name(Path(trajectory_path), "speed") or round(traj.speed, 6)
-    )
-    depth = depth if depth is not None else _from_name(Path(trajectory_path), "depth")
+    speed = speed if speed is not None else round(traj.speed, 6)
     s = config["sampling"]
     grid = SamplingGrid.from_config(config)
     attrs = {

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from dozerlab import __version__
 from dozerlab.fields.store import ATTRS, DEFAULT_CHUNK_STEPS, FieldStoreWriter, open_store
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output
 
 HEADER_BYTES = 24
 _HEADER = np.dtype([("bins", "<i4", 3), ("bin_size", "<f4", 3)])
@@ -77,6 +77,21 @@ def read_header(path: str | Path) -> tuple[tuple[int, int, int], tuple[float, fl
     return bins, bin_size, steps
 
 
+def _is_legacy(path: Path) -> bool:
+    """A file whose header and length are consistent legacy field data (:func:`read_header`)."""
+    if not path.is_file():
+        return False
+    try:
+        read_header(path)
+    except ValueError:
+        return False
+    return True
+
+
+#: What ``export-legacy`` writes; the format has no marker, so its header and length identify it.
+LEGACY_FILE = OutputKind("a legacy binary field file", _is_legacy)
+
+
 def import_legacy(
     src: str | Path,
     out: str | Path,
@@ -110,6 +125,10 @@ def import_legacy(
         "source": f"legacy binary {src.name}",
         "blade_position_origin": "integrated from blade_velocity; zero at the first step",
     }
+    if steps == 0:
+        raise ValueError(
+            f"{src}: the file holds a header ({bins} bins) but no steps; nothing to import"
+        )
     records = np.memmap(
         src, dtype=_record_dtype(bins), mode="r", offset=HEADER_BYTES, shape=(steps,)
     )
@@ -119,11 +138,12 @@ def import_legacy(
         for i in tqdm(range(steps), desc=f"import {src.name}", unit="step", disable=None):
             rec = records[i]
             t = float(rec["time"])
-            if not np.isfinite(t) or t < last_time:
-                offset = HEADER_BYTES + i * records.dtype.itemsize
+            offset = HEADER_BYTES + i * records.dtype.itemsize
+            if not np.isfinite(t) or t <= last_time:
                 raise ValueError(
-                    f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and non-decreasing"
+                    f"{src}: inconsistent time {t} at step {i} (byte offset {offset}): times must be finite and strictly increasing"
                 )
+            _check_record(src, rec, i, offset)
             if i:
                 position = position + records[i - 1]["blade_velocity"] * (t - last_time)
             last_time = t
@@ -138,6 +158,18 @@ def import_legacy(
                 position,
             )
     return Path(out)
+
+
+def _check_record(src: Path, rec: np.void, step: int, offset: int) -> None:
+    """Refuse NaN/inf in a step's record, naming the field, the bin and the byte offset."""
+    for name in ("force", "torque", "blade_velocity", "cells"):
+        bad = np.argwhere(~np.isfinite(rec[name]))
+        if bad.size:
+            where = f" at bin {tuple(int(i) for i in bad[0][:3])}" if name == "cells" else ""
+            raise ValueError(
+                f"{src}: step {step} (record at byte offset {offset}) has NaN/inf in {name}{where}; "
+                "damaged data is not imported"
+            )
 
 
 def export_legacy(store: str | Path, out: str | Path) -> Path:
@@ -155,7 +187,7 @@ def export_legacy(store: str | Path, out: str | Path) -> Path:
     block = int(
         ds["velocity"].encoding.get("preferred_chunks", {}).get("time", DEFAULT_CHUNK_STEPS)
     )
-    with atomic_output(out) as tmp, open(tmp, "wb") as f:
+    with atomic_output(out, LEGACY_FILE) as tmp, open(tmp, "wb") as f:
         f.write(header.tobytes())
         for start in tqdm(
             range(0, steps, block), desc=f"export {Path(store).name}", unit="chunk", disable=None

@@ -7,8 +7,8 @@ Figures use matplotlib's object API (no pyplot state), so they are safe in worke
 
 from __future__ import annotations
 
-import os
-from collections.abc import Sequence
+import io
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +16,7 @@ import xarray as xr
 from matplotlib.figure import Figure
 
 from dozerlab.fields.store import store_config
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import ANIMATION, FIGURE, MARK, atomic_output, png_metadata
 
 
 def _blade_size(ds: xr.Dataset) -> tuple[float, float]:
@@ -94,8 +94,8 @@ def plot_slice(ds: xr.Dataset, step: int, path: str | Path) -> Path:
         raise ValueError(f"step must be in [0, {n}) for a store of {n} steps, got {step}")
     fig = Figure(figsize=(9, 5), layout="constrained")
     _Slice(fig, ds, _density_max(ds)).show(step % n)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata=png_metadata())
     return Path(path)
 
 
@@ -117,15 +117,13 @@ def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
         f"blade force and torque about the tip — {ds.attrs.get('scenario')}, "
         f"v = {ds.attrs.get('speed')} m/s, d = {ds.attrs.get('depth')} m"
     )
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata=png_metadata())
     return Path(path)
 
 
 def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10) -> Path:
     """Write a GIF of the middle y-slice over the run, ``frames`` evenly spaced steps (>= 1)."""
-    from matplotlib.animation import PillowWriter
-
     if frames < 1 or fps < 1:
         raise ValueError(f"frames and fps must be >= 1, got {frames}, {fps}")
     n = ds.sizes["time"]
@@ -136,19 +134,46 @@ def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10
     fig = Figure(figsize=(8, 4.5), layout="constrained")
     view = _Slice(fig, ds, vmax)
     view.show(int(steps[0]))
+    return write_gif(fig, lambda s: view.show(int(s)), steps, path, fps=fps, dpi=80)
+
+
+def write_gif(
+    fig: Figure,
+    show: Callable[[int], None],
+    steps: Sequence[int] | np.ndarray,
+    path: str | Path,
+    *,
+    fps: int,
+    dpi: int,
+) -> Path:
+    """Draw ``fig`` once per step (``show(step)`` updates it) and write the frames as a looping
+    GIF at ``path``, marked as ours (:data:`dozerlab.runtime.ANIMATION`), ``fps`` frames per s."""
+    from PIL import Image
+
     fig.canvas.draw()
     fig.set_layout_engine("none")  # fix the layout once; frames only swap data
-    writer = PillowWriter(fps=fps)
-    with atomic_output(path) as tmp:
-        gif = tmp.with_name(tmp.name + ".gif")  # Pillow picks the format from the extension
-        try:
-            with writer.saving(fig, str(gif), dpi=80):
-                for s in steps:
-                    view.show(int(s))
-                    writer.grab_frame()
-            os.replace(gif, tmp)
-        finally:
-            gif.unlink(missing_ok=True)
+    width, height = (int(v) for v in fig.get_size_inches() * dpi)
+    images = []
+    for s in steps:
+        show(int(s))
+        buf = io.BytesIO()
+        fig.savefig(buf, format="rgba", dpi=dpi)
+        images.append(
+            Image.frombuffer("RGBA", (width, height), buf.getvalue(), "raw", "RGBA", 0, 1).convert(
+                "RGB"
+            )
+        )
+    with atomic_output(path, ANIMATION) as tmp:
+        # The comment marks the GIF as ours, so a later run may replace it (runtime.ANIMATION).
+        images[0].save(
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=int(1000 / fps),
+            loop=0,
+            comment=MARK,
+        )
     return Path(path)
 
 

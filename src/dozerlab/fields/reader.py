@@ -9,6 +9,10 @@ chunk straight into the output array, on a thread per core (Blosc releases the G
 
 Any other layout (a store rewritten by another tool, a non-sharded array) is read through zarr,
 so the result is always the same array ``zarr.open_array(path / name)[start:stop]`` returns.
+
+A store never silently reads as zeros: the writer writes every chunk, even an empty one, so a
+chunk file or an inner chunk that the metadata implies but the store lacks is damage
+(:func:`missing_pieces`), and :func:`read_field` refuses it, as it refuses NaN and inf.
 """
 
 from __future__ import annotations
@@ -81,6 +85,68 @@ def _layout(meta: dict[str, Any]) -> _Layout | None:
     )
 
 
+class DamagedStoreError(ValueError):
+    """A store whose files do not hold what its metadata says (a missing chunk, NaN, …)."""
+
+
+def _chunk_key(meta: dict[str, Any], idx: tuple[int, ...]) -> str:
+    """The store key (relative to the array) of chunk ``idx`` under its key encoding."""
+    enc = meta["chunk_key_encoding"]
+    if enc["name"] == "default":
+        sep = enc.get("configuration", {}).get("separator", "/")
+        return sep.join(["c", *map(str, idx)])
+    sep = enc.get("configuration", {}).get("separator", ".")
+    return sep.join(map(str, idx)) or "0"
+
+
+def missing_pieces(path: str | Path, name: str) -> list[str]:
+    """Chunks of array ``name`` that its metadata implies but the store at ``path`` lacks.
+
+    Every chunk of the array's shape must have its file; in a sharded field of this package's
+    layout every inner chunk must be in its shard's index too. Returns readable descriptions
+    (``"chunk c/1/0/0/0/0 (steps 64-127)"``); empty for a whole array.
+    """
+    array_dir = Path(path) / name
+    meta = json.loads((array_dir / "zarr.json").read_text())
+    shape = [int(n) for n in meta["shape"]]
+    grid = [int(n) for n in meta["chunk_grid"]["configuration"]["chunk_shape"]]
+    lay = _layout(meta)
+    missing = []
+    for idx in itertools.product(*(range(-(-s // c)) for s, c in zip(shape, grid, strict=True))):
+        key = _chunk_key(meta, idx)
+        steps = (
+            f" (steps {idx[0] * grid[0]}-{min(shape[0], (idx[0] + 1) * grid[0]) - 1})"
+            if idx
+            else ""
+        )
+        file = array_dir / key
+        if not file.is_file():
+            missing.append(f"chunk {key}{steps}")
+            continue
+        if lay is None:
+            continue
+        with open(file, "rb") as f:
+            index, _ = _read_index(f, file, lay.shard_steps // lay.inner_steps)
+        s0 = idx[0] * lay.shard_steps
+        for k in np.flatnonzero(index[:, 0] == _MISSING):
+            a = s0 + int(k) * lay.inner_steps
+            if a < shape[0]:
+                b = min(shape[0], a + lay.inner_steps) - 1
+                missing.append(f"inner chunk {k} of shard {key} (steps {a}-{b})")
+    return missing
+
+
+def _check_finite(values: np.ndarray, where: str, first_step: int) -> None:
+    """Refuse NaN/inf. A float32 sum is a cheap test (SIMD, no temporary); only when it is not
+    finite, which a NaN, an inf or an overflow makes it, is each value looked at."""
+    if values.size and not np.isfinite(np.add.reduce(values, axis=None)):
+        bad = np.argwhere(~np.isfinite(values))
+        if bad.size:
+            raise DamagedStoreError(
+                f"{where}: {len(bad)} NaN/inf value(s), the first at step {first_step + bad[0][0]}"
+            )
+
+
 def _decode(src: memoryview, dest: np.ndarray, compressed: bool, where: str) -> None:
     """Decode one inner chunk into ``dest`` (C-contiguous, exactly its size)."""
     if compressed:
@@ -130,9 +196,11 @@ class _Task:
         shard: int,
         first: int,
         last: int,
+        where: str,
     ) -> None:
         self.file, self.lay, self.out, self.start, self.stop = file, lay, out, start, stop
         self.s0, self.first, self.last = shard * lay.shard_steps, first, last
+        self.where = where  # "STORE: array 'NAME'", for messages
 
     def _buffer(self, name: str, nbytes: int) -> np.ndarray:
         buf = getattr(self._buffers, name, None)
@@ -150,10 +218,10 @@ class _Task:
     def __call__(self) -> None:
         lay, out, start = self.lay, self.out, self.start
         if not self.file.exists():
-            for k in range(self.first, self.last + 1):
-                _, a, b = self._rows(k)
-                out[a - start : b - start] = lay.fill_value
-            return
+            last = min(self.s0 + lay.shard_steps, lay.shape[0]) - 1
+            raise DamagedStoreError(
+                f"{self.where} is damaged: its shard {self.file} (steps {self.s0}-{last}) is missing"
+            )
         with open(self.file, "rb") as f:
             index, data_end = _read_index(f, self.file, lay.shard_steps // lay.inner_steps)
             index = index[self.first : self.last + 1]
@@ -170,8 +238,10 @@ class _Task:
         for k, (offset, nbytes) in enumerate(index, start=self.first):
             c0, a, b = self._rows(k)
             if offset == _MISSING:
-                out[a - start : b - start] = lay.fill_value
-                continue
+                raise DamagedStoreError(
+                    f"{self.where} is damaged: inner chunk {k} of shard {self.file} "
+                    f"(steps {c0}-{min(c0 + lay.inner_steps, lay.shape[0]) - 1}) is missing"
+                )
             src = data.data[int(offset) - lo : int(offset + nbytes) - lo]
             # Edge chunks are stored whole (padded with fill): decode aside, copy the rows used.
             if (a, b) == (c0, c0 + lay.inner_steps):
@@ -181,6 +251,7 @@ class _Task:
                 scratch = scratch.reshape(lay.inner_steps, *lay.shape[1:])
                 _decode(src, scratch, lay.compressed, str(self.file))
                 out[a - start : b - start] = scratch[a - c0 : b - c0]
+            _check_finite(out[a - start : b - start], self.where, a)
 
 
 @functools.lru_cache(maxsize=4)
@@ -200,16 +271,26 @@ def read_field(
 ) -> np.ndarray:
     """Steps ``start:stop`` of array ``name`` of the store at ``path``, as float32 (C order).
 
-    Equal to ``zarr.open_array(path / name)[start:stop]``; raises ``ValueError`` naming the file
-    on a corrupt shard. ``threads`` defaults to the job's thread budget.
+    Equal to ``zarr.open_array(path / name)[start:stop]`` for a whole store; raises
+    :class:`DamagedStoreError` (a ``ValueError``) naming the array and the piece when a chunk
+    the metadata implies is missing or a value is NaN/inf, and ``ValueError`` naming the file on
+    a corrupt shard. ``threads`` defaults to the job's thread budget.
     """
     array_dir = Path(path) / name
     meta_file = array_dir / "zarr.json"
     if not meta_file.exists():
         raise FileNotFoundError(f"{path} has no array '{name}'")
+    where = f"{path}: array '{name}'"
     lay = _layout(json.loads(meta_file.read_text()))
     if lay is None:
-        return np.ascontiguousarray(zarr.open_array(array_dir, mode="r")[start:stop])
+        if missing := missing_pieces(path, name):
+            raise DamagedStoreError(f"{where} is damaged: missing {', '.join(missing)}")
+        array = zarr.open_array(array_dir, mode="r")
+        values = np.ascontiguousarray(array[start:stop])
+        if values.dtype.kind == "f":
+            first = slice(start, stop).indices(array.shape[0])[0] if array.ndim else 0
+            _check_finite(values, where, first)
+        return values
     start, stop, _ = slice(start, stop).indices(lay.shape[0])
     stop = max(stop, start)
     out = np.empty((stop - start, *lay.shape[1:]), dtype=np.float32)
@@ -228,7 +309,7 @@ def read_field(
         bounds = np.linspace(first, last + 1, min(pieces, last + 1 - first) + 1).astype(int)
         file = array_dir / "c" / str(shard) / key
         tasks += [
-            _Task(file, lay, out, start, stop, shard, int(a), int(b) - 1)
+            _Task(file, lay, out, start, stop, shard, int(a), int(b) - 1, where)
             for a, b in itertools.pairwise(bounds)
         ]
     if workers == 1 or len(tasks) == 1:

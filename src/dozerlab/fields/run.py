@@ -20,13 +20,17 @@ from tqdm import tqdm
 
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FieldStoreWriter
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, text_starts_with
 
 if TYPE_CHECKING:
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
+#: The particle snapshots of ``--vtk-dir`` (meshio's VTK XML unstructured grids).
+VTK_FILE = OutputKind(
+    "a VTK unstructured grid (.vtu)", text_starts_with('<VTKFile type="UnstructuredGrid"')
+)
 
 
 @dataclass
@@ -74,7 +78,7 @@ def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
         cells=[("vertex", np.arange(len(pos)).reshape(-1, 1))],
         point_data={"radius": np.asarray(world.radii), "velocity": np.asarray(world.velocities)},
     )
-    with atomic_output(vtk_dir / f"particles_{step:06d}.vtu") as tmp:
+    with atomic_output(vtk_dir / f"particles_{step:06d}.vtu", VTK_FILE) as tmp:
         meshio.write(tmp, mesh, file_format="vtu")
 
 

@@ -35,14 +35,18 @@ from collections.abc import Mapping
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import xarray as xr
 import zarr
 from zarr.codecs import BloscCodec
 
-from dozerlab.runtime import atomic_output
+from dozerlab.fields.reader import DamagedStoreError, missing_pieces
+from dozerlab.runtime import OutputKind, atomic_output
+
+if TYPE_CHECKING:
+    from zarr.core.array_spec import ArrayConfigParams
 
 COMPONENTS = ("x", "y", "z")
 #: Dimensions of each data variable.
@@ -81,6 +85,22 @@ ATTRS = (
     "dozerlab_version",
     "config",
 )
+
+
+def is_field_store(path: Path) -> bool:
+    """A zarr group whose attributes carry ``dozerlab_version`` (every store this package writes)."""
+    meta = path / "zarr.json"
+    if not meta.is_file():
+        return False
+    doc = json.loads(meta.read_text())
+    return doc.get("node_type") == "group" and "dozerlab_version" in doc.get("attributes", {})
+
+
+#: What ``simulate`` and ``import-legacy`` write; an existing store of ours may be replaced.
+FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
+#: zarr skips chunks that hold only the fill value; written all, a missing one is damage, not a
+#: run of zeros (``reader.missing_pieces``, :func:`open_store`).
+_ALL_CHUNKS: ArrayConfigParams = {"write_empty_chunks": True}
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
 #: Steps per inner chunk of a shard.
@@ -104,7 +124,8 @@ class FieldStoreWriter:
     an exception.
 
     Args:
-        path: the ``.zarr`` directory to create (replaced if it exists).
+        path: the ``.zarr`` directory to create (an existing field store there is replaced;
+            anything else is refused, :class:`~dozerlab.runtime.OutputExistsError`).
         x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
         attrs: store attributes (ARCHITECTURE.md); must be JSON-serialisable.
         chunk_steps: time steps per shard (>= 1).
@@ -161,7 +182,7 @@ class FieldStoreWriter:
 
     def __enter__(self) -> FieldStoreWriter:
         self._stack = ExitStack()
-        tmp = self._stack.enter_context(atomic_output(self.path))
+        tmp = self._stack.enter_context(atomic_output(self.path, FIELD_STORE))
         try:
             self._create(tmp)
         except BaseException:
@@ -173,17 +194,28 @@ class FieldStoreWriter:
         group = zarr.open_group(tmp, mode="w", zarr_format=3)
         for name, c in self.coords.items():
             a = group.create_array(
-                name, shape=c.shape, dtype="f4", dimension_names=(name,), compressors=None
+                name,
+                shape=c.shape,
+                dtype="f4",
+                dimension_names=(name,),
+                compressors=None,
+                config=_ALL_CHUNKS,
             )
             a[:] = c
             a.attrs.update({"units": "m", "long_name": f"bin centre {name}, blade frame"})
         comp = group.create_array(
-            "component", shape=(3,), dtype=str, dimension_names=("component",)
+            "component", shape=(3,), dtype=str, dimension_names=("component",), config=_ALL_CHUNKS
         )
         comp[:] = np.array(COMPONENTS)
         n = self.chunk_steps
         t = group.create_array(
-            "time", shape=(0,), chunks=(n,), dtype="f8", dimension_names=("time",), fill_value=0.0
+            "time",
+            shape=(0,),
+            chunks=(n,),
+            dtype="f8",
+            dimension_names=("time",),
+            fill_value=0.0,
+            config=_ALL_CHUNKS,
         )
         t.attrs["units"] = "s"
         self._arrays["time"] = t
@@ -200,6 +232,7 @@ class FieldStoreWriter:
                 dimension_names=dims,
                 fill_value=0.0,
                 compressors=self.codec if field else None,
+                config=_ALL_CHUNKS,
             )
             a.attrs["units"] = UNITS[name]
             self._arrays[name] = a
@@ -328,10 +361,13 @@ def write_store(
 
 
 def open_store(path: str | Path) -> xr.Dataset:
-    """Open a field store lazily and check it against the schema.
+    """Open a field store lazily and check it against the schema and for damage.
 
     Raises ``ValueError`` naming every missing variable, coordinate or attribute and every
-    variable with the wrong dimensions.
+    variable with the wrong dimensions, and :class:`~dozerlab.fields.reader.DamagedStoreError`
+    naming the array and the piece when a chunk its metadata implies is missing, when ``time``
+    is not finite and strictly increasing, or when a force, torque or blade series holds NaN/inf.
+    (The fields themselves are checked as :func:`~dozerlab.fields.reader.read_field` reads them.)
     """
     path = Path(path)
     if not path.exists():
@@ -356,7 +392,40 @@ def open_store(path: str | Path) -> xr.Dataset:
         problems.append(f"missing attributes {missing_attrs}")
     if problems:
         raise ValueError(f"{path} is not a valid field store: " + "; ".join(problems))
+    _check_damage(path, ds)
     return ds
+
+
+def _check_damage(path: Path, ds: xr.Dataset) -> None:
+    """Refuse lost chunks, a time axis that is not strictly increasing, NaN/inf in the series."""
+    lost = [
+        f"array '{name}': {', '.join(missing)}"
+        for name in (*SCHEMA, "time", "x", "y", "z", "component")
+        if (missing := missing_pieces(path, name))
+    ]
+    if lost:
+        raise DamagedStoreError(
+            f"{path} is damaged, pieces its metadata implies are missing (lost files, or a copy "
+            "cut short; zarr would read them as zeros): " + "; ".join(lost)
+        )
+    t = np.asarray(ds["time"].values)
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise DamagedStoreError(f"{path}: array 'time' holds NaN/inf, first at step {bad[0]}")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        i = int(back[0])
+        raise DamagedStoreError(
+            f"{path}: array 'time' is not strictly increasing: step {i + 1} at {t[i + 1]} s "
+            f"follows {t[i]} s"
+        )
+    for name in ("force", "torque", "blade_velocity", "blade_position"):
+        values = np.asarray(ds[name].values)
+        where = np.argwhere(~np.isfinite(values))
+        if where.size:
+            raise DamagedStoreError(
+                f"{path}: array '{name}' holds {len(where)} NaN/inf value(s), first at step {where[0][0]}"
+            )
 
 
 def store_config(ds: xr.Dataset) -> dict[str, Any]:

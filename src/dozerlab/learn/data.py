@@ -16,6 +16,7 @@ training samples, so its loss is optimistic; the held-out points are the real me
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab.runtime import DozerlabError
+from dozerlab.sweep import SweepPoint
 
 TARGET_NAMES = ("force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z")
 
@@ -45,7 +47,8 @@ class StoreData:
     point: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     row_dt: float = 0.0
-    bin_size: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: the store's bin size (x, y, z) in m; None where the source does not say
+    bin_size: tuple[float, float, float] | None = None
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -60,15 +63,12 @@ class StoreData:
         return Path(self.source).stem or "store"
 
 
-def point_key(point: dict[str, Any]) -> tuple[str, float, float] | None:
-    """(scenario, speed, depth) of a sweep point, rounded so float noise cannot hide a match."""
-    if not {"scenario", "speed", "depth"} <= point.keys():
+def point_key(point: dict[str, Any]) -> tuple[str, str] | None:
+    """The sweep point's identity (:attr:`dozerlab.sweep.SweepPoint.key`: scenario and
+    canonical name) of a store's labels, or None when a label is missing."""
+    if not {"scenario", "speed", "depth"} <= point.keys() or None in point.values():
         return None
-    return (
-        str(point["scenario"]),
-        round(float(point["speed"]), 9),
-        round(float(point["depth"]), 9),
-    )
+    return SweepPoint(str(point["scenario"]), float(point["speed"]), float(point["depth"])).key
 
 
 def _f32(a: Any) -> np.ndarray:
@@ -124,9 +124,10 @@ def load_store(path: str | Path) -> StoreData:
     from dozerlab.fields.reader import read_field
     from dozerlab.fields.store import open_store
 
-    ds = open_store(path)  # checks the schema: a missing variable is a ValueError naming it
-    point = {k: ds.attrs[k] for k in ("scenario", "speed", "depth") if k in ds.attrs}
-    return from_arrays(
+    ds = open_store(path)  # checks the schema and for damage (lost chunks, NaN, time order)
+    point = {k: v for k in ("scenario", "speed", "depth") if (v := ds.attrs.get(k)) is not None}
+    size = ds.attrs.get("bin_size")
+    data = from_arrays(
         read_field(path, "velocity"),
         read_field(path, "density"),
         ds["blade_velocity"].values,
@@ -138,20 +139,40 @@ def load_store(path: str | Path) -> StoreData:
         row_dt=float(ds.attrs.get("dt") or 0.0) * float(ds.attrs.get("sample_every") or 1),
         bin_size=tuple(ds.attrs.get("bin_size") or (0.0, 0.0, 0.0)),
     )
+    data.bin_size = tuple(float(v) for v in size) if size else None  # type: ignore[assignment]
+    return data
 
 
 def check_grid(
-    stores: list[StoreData], grid: tuple[int, int, int] | None = None
+    stores: list[StoreData],
+    grid: tuple[int, int, int] | None = None,
+    bin_size: Sequence[float] | None = None,
 ) -> tuple[int, int, int]:
-    """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch."""
+    """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch.
+
+    ``bin_size`` (m; default: the first store's that has one) must match every store's that
+    has one: a model learns forces per bin, so the same bin counts over another volume are
+    other fields.
+    """
     if not stores:
         raise ValueError("no field stores given (at least one is needed)")
     expected = stores[0].grid if grid is None else (int(grid[0]), int(grid[1]), int(grid[2]))
+    sizes = [s.bin_size for s in stores if s.bin_size is not None]
+    size = tuple(bin_size) if bin_size is not None else (sizes[0] if sizes else None)
     for s in stores:
         if s.grid != expected:
             raise DozerlabError(
                 f"field store {s.source or s.name} has a {s.grid} grid but the model expects {expected}; "
                 "models only apply to stores sampled with the same sampling.bins"
+            )
+        if (
+            size is not None
+            and s.bin_size is not None
+            and not np.allclose(s.bin_size, size, rtol=1e-5)
+        ):
+            raise DozerlabError(
+                f"field store {s.source or s.name} has bins of {list(s.bin_size)} m but the model expects "
+                f"{list(size)} m; models only apply to stores sampled with the same sampling volume and bins"
             )
     return expected
 

@@ -11,12 +11,17 @@ import numpy as np
 
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
-from dozerlab.learn.data import StoreData, load_store, point_key
+from dozerlab.learn.data import StoreData, check_grid, load_store, point_key
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import EpochCallback, TrainResult, train_model
 from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output, check_output, json_with
+
+#: What ``validate`` writes beside its plots: the metrics JSON.
+VALIDATION_JSON = OutputKind(
+    "a dozerlab validation JSON", json_with(("model", "groups", "overall", "summary"))
+)
 
 
 def training_meta(stores: list[StoreData], train: list[str | Path]) -> dict[str, Any]:
@@ -25,6 +30,7 @@ def training_meta(stores: list[StoreData], train: list[str | Path]) -> dict[str,
         "train_points": [s.point for s in stores],
         "train_keys": [k for s in stores if (k := point_key(s.point)) is not None],
         "train_sources": [str(Path(p).resolve()) for p in train],
+        "bin_size": next((list(s.bin_size) for s in stores if s.bin_size is not None), None),
     }
 
 
@@ -73,7 +79,9 @@ def train_job(
     log the run (params, per-epoch losses, final training metrics, loss plot, model)."""
     import mlflow
 
+    check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
+    check_grid(stores)  # counts and sizes of the bins agree
     meta = {**training_meta(stores, train), "learn": config["learn"], "seed": config.get("seed")}
     params = {
         "model": kind,
@@ -91,7 +99,7 @@ def train_job(
         meta.update(result_meta(result))
         model = result.model.cpu()
         example = store_arrays(stores[0])
-        with atomic_output(out) as tmp:
+        with atomic_output(out, pyfunc.MODEL_DIR) as tmp:
             pyfunc.save(model, meta, tmp, example)
         if run is not None:
             fit = evaluate(model, stores)["overall"]
@@ -123,8 +131,9 @@ def validate_job(
     named after ``out``) and an MLflow validate run."""
     import mlflow
 
-    model, meta = pyfunc.load(model_dir)
     out = Path(out)
+    check_output(out, VALIDATION_JSON)
+    model, meta = pyfunc.load(model_dir)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
     groups = load_groups(interpolation, extrapolation)
     params = {
@@ -136,7 +145,7 @@ def validate_job(
         config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
-        with atomic_output(out) as tmp:
+        with atomic_output(out, VALIDATION_JSON) as tmp:
             tmp.write_text(json.dumps(result, indent=1))
         if run is not None:
             metrics = flat(result["overall"], "overall")
@@ -150,7 +159,9 @@ def validate_job(
 
 def evaluate_job(model_dir: str | Path, stores: list[str | Path]) -> dict[str, Any]:
     """Metrics of a saved model on ``stores`` (per store and overall)."""
-    model, _ = pyfunc.load(model_dir)
-    result = evaluate(model, [load_store(p) for p in stores])
+    model, meta = pyfunc.load(model_dir)
+    data = [load_store(p) for p in stores]
+    check_grid(data, model.grid, meta.get("bin_size"))
+    result = evaluate(model, data)
     result["points"] = strip_series(result["points"])
     return result

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 
 
 def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6) -> tuple[Any, Any, Any]:
@@ -21,8 +21,8 @@ def _figure(ncols: int = 1, width: float = 5.0, height: float = 3.6) -> tuple[An
 
 def _save(plt: Any, fig: Any, path: Path) -> Path:
     fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, dpi=110, format="png", metadata=png_metadata())
     plt.close(fig)
     return path
 

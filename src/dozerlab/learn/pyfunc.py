@@ -32,9 +32,23 @@ from mlflow.pyfunc.model import PythonModel
 
 from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.models import ForceModel
-from dozerlab.runtime import DozerlabError
+from dozerlab.runtime import DozerlabError, OutputKind
 
 INPUT_NAMES = ("velocity", "density", "blade_velocity")
+
+
+def is_model_dir(path: Path) -> bool:
+    """An MLflow model directory holding this package's ``artifacts/meta.json`` and weights."""
+    art = path / "artifacts"
+    return (
+        (path / "MLmodel").is_file()
+        and (art / "weights.pt").is_file()
+        and "kind" in json.loads((art / "meta.json").read_text())
+    )
+
+
+#: What ``dozerlab train`` writes; an earlier model of ours at ``--out`` may be replaced.
+MODEL_DIR = OutputKind("a dozerlab model directory (MLmodel + artifacts/meta.json)", is_model_dir)
 
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:

@@ -18,6 +18,7 @@ from dozerlab.learn.metrics import component_metrics
 from dozerlab.learn.models import ForceModel
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.runtime import DozerlabError
+from dozerlab.sweep import SweepPoint
 
 GROUPS = ("interpolation", "extrapolation")
 
@@ -38,7 +39,11 @@ def predict_store(model: ForceModel, store: StoreData) -> tuple[np.ndarray, np.n
 
 def check_no_leak(meta: dict[str, Any], stores: list[StoreData]) -> None:
     """Refuse held-out stores whose sweep point (or file) the model was trained on."""
-    trained = {tuple(p) for p in meta.get("train_keys", [])}
+    # keys of models saved before the sweep's identity were (scenario, speed, depth)
+    trained = {
+        SweepPoint(str(p[0]), float(p[1]), float(p[2])).key if len(p) == 3 else tuple(p)
+        for p in meta.get("train_keys", [])
+    }
     sources = {str(Path(s).resolve()) for s in meta.get("train_sources", [])}
     for s in stores:
         key = point_key(s.point)
@@ -103,7 +108,7 @@ def validate(
     stores = [s for g in GROUPS for s in held_out.get(g, [])]
     if not stores:
         raise ValueError("no held-out stores given (--interpolation and/or --extrapolation)")
-    check_grid(stores, model.grid)
+    check_grid(stores, model.grid, meta.get("bin_size"))
     check_no_leak(meta, stores)
     groups = {g: evaluate(model, held_out[g]) for g in GROUPS if held_out.get(g)}
     allpts = [p for g in groups.values() for p in g["points"]]

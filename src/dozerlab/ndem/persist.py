@@ -11,12 +11,14 @@ from dozerlab.ndem.bodies import FIELDS as BODY_FIELDS
 from dozerlab.ndem.bodies import Bodies
 from dozerlab.ndem.params import NAMES, Parameters
 from dozerlab.ndem.state import SPHERE_FIELDS, WorldState
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
 
 FORMAT_VERSION = 1
 # Parameters written as param_NAME scalars (gravity is a (3,) array of its own); files written
 # before a parameter existed load with its default.
 SCALARS = tuple(n for n in NAMES if n != "gravity")
+#: What :func:`save_world` writes (recognised by its format version and parameters).
+WORLD_FILE = OutputKind("a dozerlab World file (.npz)", npz_with(("format_version", "param_dt")))
 
 
 def save_world(path: str | Path, params: Parameters, state: WorldState, bodies: Bodies) -> None:
@@ -34,7 +36,7 @@ def save_world(path: str | Path, params: Parameters, state: WorldState, bodies: 
         "warm_hi": state.warm.hi,
         "warm_lam": state.warm.lam,
     }
-    with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+    with atomic_output(path, WORLD_FILE) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
 

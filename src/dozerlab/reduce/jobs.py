@@ -11,11 +11,15 @@ from typing import Any
 import numpy as np
 
 from dozerlab import sweep as P
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import FIGURE_DIR, DozerlabError, OutputKind, atomic_output, json_with
 
 log = logging.getLogger(__name__)
 
 #: Per-role summary of the comparison: how each figure is aggregated over the points.
+#: What ``compare-reduced`` writes: the reduced runs measured against NDEM.
+COMPARISON_JSON = OutputKind(
+    "a dozerlab reduced-run comparison JSON", json_with(("dynamics_model", "points", "overall"))
+)
 AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
     "height_accuracy": np.mean,
     "force_x_rel_rmse": np.mean,
@@ -130,7 +134,7 @@ def compare_job(
         params={"reduced": config["reduced"]},
         experiment=config["mlflow"]["experiment"],
     ) as run:
-        with atomic_output(plots) as tmp_plots:
+        with atomic_output(plots, FIGURE_DIR) as tmp_plots:
             tmp_plots.mkdir(parents=True)
             for point in held_out:
                 ndem_store = P.field_path(results, point)
@@ -179,7 +183,7 @@ def compare_job(
             "points": entries,
             "overall": {k: v for k, v in overall.items() if v},
         }
-        with atomic_output(out) as tmp:
+        with atomic_output(out, COMPARISON_JSON) as tmp:
             Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True))
         if run is not None:
             import mlflow

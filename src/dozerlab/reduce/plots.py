@@ -9,7 +9,6 @@ averaged over y).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -17,13 +16,13 @@ import numpy as np
 import xarray as xr
 from matplotlib.figure import Figure
 
-from dozerlab.fields.plots import _density_max, _Slice
-from dozerlab.runtime import atomic_output
+from dozerlab.fields.plots import _density_max, _Slice, write_gif
+from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, metadata=png_metadata())
     return Path(path)
 
 
@@ -102,8 +101,6 @@ def animate_pair(
     ndem: xr.Dataset, reduced: xr.Dataset, path: str | Path, *, frames: int = 40, fps: int = 6
 ) -> Path:
     """A GIF of NDEM (left) next to the reduced run (right), ``frames`` rows spread over the run."""
-    from matplotlib.animation import PillowWriter
-
     n = ndem.sizes["time"]
     steps = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
     vmax = max(_density_max(ndem), _density_max(reduced))
@@ -136,15 +133,5 @@ def animate_pair(
         line_r.set_ydata(surface(reduced, s, vmax))
 
     show(int(steps[0]))
-    writer = PillowWriter(fps=fps)
-    with atomic_output(path) as tmp:
-        gif = tmp.with_name(tmp.name + ".gif")  # Pillow picks the format from the extension
-        try:
-            with writer.saving(fig, str(gif), dpi=60):  # ≈1 MB: the report embeds several
-                for s in steps:
-                    show(int(s))
-                    writer.grab_frame()
-            os.replace(gif, tmp)
-        finally:
-            gif.unlink(missing_ok=True)
-    return Path(path)
+    # dpi 60: ≈1 MB a point, and the report embeds several
+    return write_gif(fig, show, steps, path, fps=fps, dpi=60)

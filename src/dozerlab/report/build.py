@@ -16,7 +16,7 @@ from typing import Any
 from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.sections import Context, modules
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import atomic_output, check_output
 from dozerlab.sweep import by_role, fmt_number, sweep_points
 
 TITLE = "dozerlab report"
@@ -24,9 +24,11 @@ TITLE = "dozerlab report"
 
 def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -> Path:
     """Write the report of the validated config's sweep, read from ``results``, to ``out``."""
+    out = Path(out)
+    check_output(out, html.REPORT_PAGE)
     ctx = Context(cfg, Path(results), tuple(sweep_points(cfg)))
     text = render_report(ctx)
-    with atomic_output(out) as tmp:
+    with atomic_output(out, html.REPORT_PAGE) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(out)
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from dozerlab.runtime import MARK, OutputKind, text_starts_with
+
 _MIME = {
     ".png": "image/png",
     ".gif": "image/gif",
@@ -197,7 +199,14 @@ def page(title: str, sections: Sequence[tuple[str, str, str]], intro: str = "") 
     )
     return (
         '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f'<meta name="generator" content="{MARK}">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
         f"<title>{esc(title)}</title><style>{_STYLE}</style></head>\n<body>\n"
         f"<h1>{esc(title)}</h1>\n{intro}\n<nav>{nav}</nav>\n{body}\n</body></html>\n"
     )
+
+
+#: What :func:`page` writes (``dozerlab report``); recognised by its generator tag.
+REPORT_PAGE = OutputKind(
+    "a dozerlab report page", text_starts_with(f'<meta name="generator" content="{MARK}">')
+)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
 
 SCENARIOS: tuple[str, ...] = ("hill", "step")
 
@@ -29,6 +29,8 @@ _ARRAYS = (
     "settle_kinetic_energy",
     "settle_contacts",
 )
+#: What ``dozerlab bed`` writes: a ``.npz`` with the bed's metadata and arrays.
+BED_FILE = OutputKind("a dozerlab bed file (.npz)", npz_with(("metadata", *_ARRAYS)))
 
 
 @dataclass
@@ -100,7 +102,7 @@ class Bed:
             "dozerlab_version": __version__,
         }
         arrays = {name: getattr(self, name) for name in _ARRAYS}
-        with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+        with atomic_output(path, BED_FILE) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, metadata=np.array(json.dumps(meta)), **arrays)
 
     @classmethod

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -28,8 +28,8 @@ def _pyplot():
 
 
 def _save(fig, path: str | Path) -> None:
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, format="png", dpi=120, metadata=png_metadata())
 
 
 def plot_trajectory(traj: Trajectory, path: str | Path) -> None:

@@ -30,13 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.runtime import DozerlabError, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, first_line_is
 from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.blade import start_tip
 from dozerlab.scenarios.filters import smooth_height
 from dozerlab.scenarios.heightfield import height_field
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
+#: What ``dozerlab trajectory`` writes: a CSV with exactly this header.
+TRAJECTORY_FILE = OutputKind("a dozerlab trajectory CSV", first_line_is(",".join(CSV_COLUMNS)))
 
 
 def _empty() -> np.ndarray:
@@ -77,7 +79,7 @@ class Trajectory:
         """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically."""
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
-        with atomic_output(path) as tmp:
+        with atomic_output(path, TRAJECTORY_FILE) as tmp:
             np.savetxt(
                 tmp,
                 table,

@@ -17,10 +17,16 @@ from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.learn.dynamics.windows import frame_of
 from dozerlab.learn.jobs import epoch_logger, result_meta, store_arrays, training_meta
 from dozerlab.learn.plots import loss_curves
+from dozerlab.learn.pyfunc import MODEL_DIR
 from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import OutputKind, atomic_output, json_with
 from dozerlab.tracking import job_run
+
+#: What ``validate-dynamics`` writes: held-out one-step and rollout metrics.
+VALIDATION_JSON = OutputKind(
+    "a dozerlab evolution-model validation JSON", json_with(("model", "overall", "groups"))
+)
 
 
 def train_dynamics_job(
@@ -56,7 +62,7 @@ def train_dynamics_job(
         )
         meta.update(result_meta(result))
         model = result.model.cpu()
-        with atomic_output(out) as tmp:
+        with atomic_output(out, MODEL_DIR) as tmp:
             pyfunc.save(model, meta, tmp, store_arrays(stores[0]))
         if run is not None:
             mlflow.log_metrics(
@@ -202,7 +208,7 @@ def validate_dynamics_job(
         result = validate_dynamics(
             model, meta, held, dyn["rollout_steps"], dyn["rollout_starts"], pdir, out.parent
         )
-        with atomic_output(out) as tmp:
+        with atomic_output(out, VALIDATION_JSON) as tmp:
             tmp.write_text(json.dumps(result, indent=1))
         if run is not None:
             mlflow.log_metrics(flat_metrics(result))

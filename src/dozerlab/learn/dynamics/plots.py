@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab.learn.plots import _figure, _save
-from dozerlab.runtime import atomic_output
+from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 
 
 def rollout_curves(series: dict[str, dict[str, Any]], path: str | Path, title: str = "") -> Path:
@@ -52,7 +52,7 @@ def density_slices(fields: np.ndarray, steps: list[int], path: str | Path, title
             ax.set(title=f"{label}, step {k}", xlabel="x bin", ylabel="z bin")
     fig.colorbar(im, ax=grid, shrink=0.7, label="density (kg/m³)")
     fig.suptitle(title)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    with atomic_output(path, FIGURE) as tmp:
+        fig.savefig(tmp, dpi=110, format="png", metadata=png_metadata())
     plt.close(fig)
     return Path(path)

@@ -40,20 +40,23 @@ def frame_of(
     """The common row interval (s) and bin size (m) of ``stores`` (or ``expected``); a
     DozerlabError names a store whose frame is unknown or differs."""
     check_grid(stores)
-    ref = expected or (stores[0].row_dt, stores[0].bin_size)
     for s in stores:
-        known = s.row_dt > 0 and all(b > 0 for b in s.bin_size)
-        if not known:
+        if not (s.row_dt > 0 and s.bin_size is not None and all(b > 0 for b in s.bin_size)):
             raise DozerlabError(
                 f"{s.source or s.name}: the store lacks its row interval or bin size "
                 "(attributes dt, sample_every, bin_size), which the evolution models need"
             )
-        if not np.allclose((s.row_dt, *s.bin_size), (ref[0], *ref[1]), rtol=1e-5):
+    first = stores[0].bin_size
+    assert first is not None  # checked above
+    dt, size = expected or (stores[0].row_dt, first)
+    for s in stores:
+        assert s.bin_size is not None
+        if not np.allclose((s.row_dt, *s.bin_size), (dt, *size), rtol=1e-5):
             raise DozerlabError(
                 f"{s.source or s.name}: row interval {s.row_dt} s and bins {s.bin_size} m differ from "
-                f"the model's {ref[0]} s and {ref[1]} m; evolution models apply to one sampling only"
+                f"the model's {dt} s and {size} m; evolution models apply to one sampling only"
             )
-    return float(ref[0]), tuple(float(b) for b in ref[1])  # type: ignore[return-value]
+    return float(dt), (float(size[0]), float(size[1]), float(size[2]))
 
 
 class WindowBatches:
