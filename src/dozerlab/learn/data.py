@@ -35,8 +35,9 @@ class StoreData:
 
     velocity (T, Nx, Ny, Nz, 3) m/s, density (T, Nx, Ny, Nz) kg/m³, blade_velocity (T, 3) m/s,
     target (T, 6) force N then torque N·m, time (T,) s; all float32 and C-contiguous.
-    ``row_dt`` (s) is the time between rows and ``bin_size`` (m) the bins' edge lengths, 0 where
-    unknown (the field-evolution models need them for the blade frame's shift per row).
+    ``row_dt`` (s) is the time between rows (0 where unknown) and ``bin_size`` (m) the bins' edge
+    lengths (None where unknown); the field-evolution models need both for the blade frame's
+    shift per row, and models refuse stores of other bin sizes.
     """
 
     velocity: np.ndarray
@@ -86,7 +87,7 @@ def from_arrays(
     point: dict[str, Any] | None = None,
     source: str = "",
     row_dt: float = 0.0,
-    bin_size: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    bin_size: Sequence[float] | None = None,
 ) -> StoreData:
     """Build a :class:`StoreData` from arrays shaped like a field store's, checking shapes."""
     v, rho = _f32(velocity), _f32(density)
@@ -115,7 +116,7 @@ def from_arrays(
         dict(point or {}),
         source,
         float(row_dt),
-        tuple(float(b) for b in bin_size),  # type: ignore[arg-type]
+        None if bin_size is None else (float(bin_size[0]), float(bin_size[1]), float(bin_size[2])),
     )
 
 
@@ -126,8 +127,7 @@ def load_store(path: str | Path) -> StoreData:
 
     ds = open_store(path)  # checks the schema and for damage (lost chunks, NaN, time order)
     point = {k: v for k in ("scenario", "speed", "depth") if (v := ds.attrs.get(k)) is not None}
-    size = ds.attrs.get("bin_size")
-    data = from_arrays(
+    return from_arrays(
         read_field(path, "velocity"),
         read_field(path, "density"),
         ds["blade_velocity"].values,
@@ -137,10 +137,8 @@ def load_store(path: str | Path) -> StoreData:
         point=point,
         source=str(path),
         row_dt=float(ds.attrs.get("dt") or 0.0) * float(ds.attrs.get("sample_every") or 1),
-        bin_size=tuple(ds.attrs.get("bin_size") or (0.0, 0.0, 0.0)),
+        bin_size=ds.attrs.get("bin_size") or None,
     )
-    data.bin_size = tuple(float(v) for v in size) if size else None  # type: ignore[assignment]
-    return data
 
 
 def check_grid(
