@@ -46,7 +46,7 @@ rule compare_reduced:
     threads: 1
     params:
         cfg=lambda wc: config_json("solver", "material", "blade", "trajectory", "sweep", "reduced", "mlflow"),
-        results=RESULTS,
+        results=lambda wc: RESULTS,
     shell:
         "python -m dozerlab compare-reduced --dynamics-model {wildcards.dynamics_model} --config {params.cfg:q}"
         " --results {params.results:q} --out {output.json:q} --plots {output.plots:q} > {log:q} 2>&1"
