@@ -115,11 +115,26 @@ def sweep(tmp_path_factory):
     return workdir, experiment, done.stderr
 
 
+HELD_OUT = [p for p in POINTS if p.role != "train"]
+DYNAMICS = CFG["dynamics"]["models"]
+REDUCED = CFG["reduced"]["dynamics_models"]
+#: The MLflow child run of every job that records one (trajectories and the report do not).
+EXPECTED_RUNS = {
+    "bed": 1,
+    "simulate": len(POINTS),
+    "train": len(MODELS),
+    "validate": len(MODELS),
+    "train_dynamics": len(DYNAMICS),
+    "validate_dynamics": len(DYNAMICS),
+    "reduce": len(REDUCED) * len(HELD_OUT),
+    "compare_reduced": len(REDUCED),
+}
+
+
 def test_every_job_ran_as_a_slurm_job_with_its_log_kept(sweep):
     workdir, _, log = sweep
     submitted = SUBMITTED.findall(log)
-    # bed, a trajectory and a simulation per point, a training and a validation per model, report
-    jobs = 1 + 2 * len(POINTS) + 2 * len(MODELS) + 1
+    jobs = sum(EXPECTED_RUNS.values()) + len(POINTS) + 1  # and a trajectory per point, the report
     assert len(submitted) == jobs, log[-3000:]
     assert len({job_id for job_id, _ in submitted}) == jobs
     for job_id, path in submitted:
@@ -147,9 +162,8 @@ def test_the_postgres_store_holds_one_parent_and_every_child_finished(sweep):
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     assert len(all_runs) == 1 + len(children)
     rules = sorted(r.data.tags["rule"] for r in children)
-    expected = {"bed": 1, "simulate": len(POINTS), "train": len(MODELS), "validate": len(MODELS)}
-    assert {rule: rules.count(rule) for rule in expected} == expected
-    assert len(children) == sum(expected.values())
+    assert {rule: rules.count(rule) for rule in EXPECTED_RUNS} == EXPECTED_RUNS
+    assert len(children) == sum(EXPECTED_RUNS.values())
     slurm_ids = {job_id for job_id, _ in SUBMITTED.findall(log)}
     child_ids = [r.data.tags.get("slurm_job_id") for r in children]
     assert set(child_ids) <= slurm_ids and len(set(child_ids)) == len(children)
