@@ -6,12 +6,14 @@ Import them from here (``from tests.helpers import …``); conftest files hold o
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.fields.store import write_store
 from dozerlab.learn.data import StoreData, from_arrays
@@ -199,3 +201,108 @@ def write(path: Path, speed: float, depth: float, **kw) -> Path:
         )
     }
     return write_store(path, **coords, **series, attrs=attrs, chunk_steps=32)
+
+
+# The report's material: what the workflow's jobs leave under results/, written without them.
+
+
+def png_file(path: Path, title: str) -> Path:
+    """A small PNG of an empty plot titled ``title`` at ``path`` (folders made)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3, 2))
+    fig.subplots().set_title(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
+
+
+def report_store(path: Path, point: Any, steps: int = 6, wall_time: float | None = None) -> None:
+    """A field store of ``point`` (a :class:`dozerlab.sweep.SweepPoint`): 4×3×3 bins, ``steps``
+    rows 0.01 s apart from t = 0.01 s, sample_every 2, 321 particles, force (1000, 0, 300) N
+    except the last row's 2000 N along x."""
+    rng = np.random.default_rng(0)
+    x, y, z = np.linspace(0.05, 0.55, 4), np.linspace(-0.3, 0.3, 3), np.linspace(-0.05, 0.25, 3)
+    t = 0.01 * np.arange(1, steps + 1)
+    force = np.tile([1000.0, 0.0, 300.0], (steps, 1))
+    force[-1, 0] = 2000.0
+    write_store(
+        path,
+        x=x,
+        y=y,
+        z=z,
+        time=t,
+        velocity=rng.normal(size=(steps, 4, 3, 3, 3)).astype(np.float32),
+        density=rng.uniform(0, 1600, size=(steps, 4, 3, 3)).astype(np.float32),
+        force=force,
+        torque=np.zeros((steps, 3)),
+        blade_velocity=np.tile([point.speed, 0, 0], (steps, 1)),
+        blade_position=np.zeros((steps, 3)),
+        attrs={
+            "scenario": point.scenario,
+            "speed": point.speed,
+            "depth": point.depth,
+            "bins": [4, 3, 3],
+            "bin_size": [0.15, 0.2, 0.1],
+            "dt": 0.01,
+            "iterations": 10,
+            "sample_every": 2,
+            "particle_count": 321,
+            "seed": 1,
+            "dozerlab_version": "test",
+            "config": "{}",
+        }
+        | ({"wall_time_s": wall_time} if wall_time is not None else {}),
+    )
+
+
+def report_bed(results: Path) -> None:
+    """A 1 m × 0.5 m hill bed of 40 grains at its place under ``results``."""
+    rng = np.random.default_rng(1)
+    n = 40
+    pos = np.column_stack(
+        [rng.uniform(0.05, 0.95, n), rng.uniform(-0.2, 0.2, n), rng.uniform(0.05, 0.3, n)]
+    )
+    zeros = np.zeros((n, 3))
+    bed = Bed("hill", 1.0, 0.5, pos, np.full(n, 0.05), np.ones(n), zeros, zeros, {}, 1)
+    P.bed_path(results, "hill").parent.mkdir(parents=True, exist_ok=True)
+    bed.save(P.bed_path(results, "hill"))
+
+
+def validation_json(results: Path, model: str) -> None:
+    """``dozerlab validate``'s JSON of ``model`` (every relative RMSE 12.5 %) and its parity
+    plot, at their places under ``results``."""
+    metrics = {
+        c: {"rmse": 10.0, "rel_rmse": 0.125, "r2": 0.5}
+        for c in ("force_x", "force_y", "force_z", "torque_x", "torque_y", "torque_z")
+    }
+    point = {"name": "hill speed~0.75_depth~0.1", "metrics": metrics}
+    plots = results / "validation" / model
+    png_file(plots / "parity.png", "parity")
+    doc = {
+        "model": model,
+        "summary": f"{model}: fine",
+        "overall": metrics,
+        "groups": {
+            g: {"overall": metrics, "points": [point]} for g in ("interpolation", "extrapolation")
+        },
+        "training": {"epochs": 1, "best_epoch": 0, "samples": {"train": 10}, "seconds": 1.5},
+        "plots": {"parity": f"{model}/parity.png", "series": {}},
+    }
+    path = P.validation_path(results, model)
+    path.write_text(json.dumps(doc))
+
+
+def table_cells(text: str, section: str, row: int) -> list[str]:
+    """The cells of data row ``row`` (header rows not counted) of the tables in the report's
+    section ``section``."""
+    body = re.search(rf'<section id="{section}">(.*?)</section>', text, re.S)[1]
+    rows = [r for r in re.findall(r"<tr>(.*?)</tr>", body) if "<td" in r]
+    return re.findall(r"<td[^>]*>(.*?)</td>", rows[row])
+
+
+def report_context(cfg: dict[str, Any], results: Path) -> Any:
+    """The :class:`dozerlab.report.sections.Context` a section renders from."""
+    from dozerlab.report.sections import Context
+
+    return Context(cfg, results, tuple(P.sweep_points(cfg)))

@@ -1,0 +1,33 @@
+"""The sweep section: the map and the table of every sweep point."""
+
+import re
+
+from matplotlib.figure import Figure
+
+from dozerlab import sweep as P
+from dozerlab.config import load_config
+from dozerlab.report.collect import PointSummary
+from dozerlab.report.sections import sweep
+from tests.helpers import SMALL_SWEEP, report_context, report_store
+
+CFG = load_config(SMALL_SWEEP)
+
+
+def test_nothing_built_leaves_the_section_out(tmp_path):
+    assert sweep.render(report_context(CFG, tmp_path)) is None
+
+
+def test_one_row_per_point_and_the_map_with_its_colour_scale(tmp_path):
+    points = P.sweep_points(CFG)
+    report_store(P.field_path(tmp_path, points[2]), points[2])
+    text = sweep.render(report_context(CFG, tmp_path))
+    rows = re.findall(r"<tr>(.*?)</tr>", text)
+    assert len(rows) == 1 + len(points)  # heading and one row per point, built or not
+    assert text.count("data:image/png;base64,") == 1
+    summaries = [PointSummary(p) for p in points]
+    summaries[2].mean_force = 1500.0
+    fig = sweep.sweep_map(summaries)
+    assert isinstance(fig, Figure)
+    panel, colorbar = fig.axes
+    assert panel.get_title() == "hill" and colorbar.get_ylabel() == "mean |F| (kN)"
+    assert [t.get_text() for t in panel.texts] == ["1.50 kN"]  # only the built point is labelled

@@ -1,0 +1,68 @@
+"""The report, on synthetic results (no simulation)."""
+
+import re
+
+from dozerlab import sweep as P
+from dozerlab.config import load_config
+from dozerlab.report.build import build_report
+from tests.helpers import (
+    SMALL_SWEEP,
+    png_file,
+    report_bed,
+    report_store,
+    table_cells,
+    validation_json,
+)
+
+CFG = load_config(SMALL_SWEEP)
+
+
+def test_report_embeds_everything_with_units(tmp_path):
+    results = tmp_path / "results"
+    pts = P.sweep_points(CFG)
+    for p in pts[:3]:  # the extrapolation point is "not built"
+        report_store(P.field_path(results, p), p, wall_time=12.5 if p is pts[0] else None)
+        png_file(P.trajectory_path(results, p, "png"), p.name)
+    report_bed(results)
+    validation_json(results, "linear")
+
+    out = build_report(CFG, results, results / "report" / "index.html")
+    text = out.read_text()
+    ids = re.findall(r'<section id="([a-z]+)">', text)
+    assert ids == ["sweep", "beds", "runs", "models"]
+    # the sweep table: units in the headings, the simulation's own stepping time
+    for heading in ("speed (m/s)", "depth (m)", "stepping wall time (s)", "mean |F| (kN)"):
+        assert f"<th>{heading}</th>" in text
+    first = table_cells(text, "sweep", 0)
+    assert first == [
+        "hill", "training", "0.5", "0.1", "321", "12", "0.06", "12.5", "208 ×", "1.21", "2.02"
+    ]  # fmt: skip
+    assert table_cells(text, "sweep", 1)[7:9] == ["–", "–"]  # a store without wall_time_s
+    extra = table_cells(text, "sweep", 3)
+    assert extra[:2] == ["hill", "held out, extrapolation"] and extra[4:] == ["–"] * 7
+    assert "Not built yet: hill speed~2.0_depth~0.1." in text
+    # the models: a chart and a table of percentages (unit in the heading, 12.5 in the cell)
+    assert "<th>force_x rel. RMSE (%)</th>" in text and "<td>12.5</td>" in text
+    assert 'id="validation-linear"' in text
+    assert "Lowest force_x relative RMSE: on the interpolation points linear, 12.5 %" in text
+    # every image embedded: sweep map; bed; per built point trajectory, slice, force;
+    # the error chart and the model's parity plot
+    assert text.count('src="data:image/png;base64,') == 1 + 1 + 3 * 3 + 2
+    assert 'src="linear/' not in text and "Smoke test" not in text
+
+
+def test_sections_without_data_are_left_out(tmp_path):
+    results = tmp_path / "results"
+    text = build_report(CFG, results, tmp_path / "empty.html").read_text()
+    assert "<section" not in text and f"No results under {results} yet." in text
+
+    (results / "validation").mkdir(parents=True)
+    validation_json(results, "linear")
+    text = build_report(CFG, results, tmp_path / "models.html").read_text()
+    assert re.findall(r'<section id="([a-z]+)">', text) == ["models"]
+
+
+def test_smoke_test_config_says_so(tmp_path):
+    cfg = load_config({**CFG, "report": {"smoke_test": True}})
+    text = build_report(cfg, tmp_path / "results", tmp_path / "index.html").read_text()
+    assert '<div class="note">Smoke test' in text
