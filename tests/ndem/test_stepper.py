@@ -213,3 +213,21 @@ def test_emitted_bed_settles_with_the_workflow_defaults():
     assert kinetic < 1e-4
     assert w.last_stats.max_overlap_fraction < 0.05
     assert w.positions[:, 2].min() > 0.9 * R * 0.9
+
+
+def test_advance_without_spheres_moves_the_bodies_and_the_clock():
+    from dozerlab.ndem.bodies import Bodies
+    from dozerlab.ndem.params import Parameters
+    from dozerlab.ndem.state import WorldState
+    from dozerlab.ndem.stepper import advance
+
+    bodies = Bodies()
+    blade = bodies.add_box((0, 0, 0), (0.1, 0.1, 0.1), True, 0.5, None)
+    bodies.vel[blade] = [0.5, 0.0, 0.0]
+    bodies.force[blade] = [3.0, 0.0, 0.0]  # last step's load, cleared
+    state = WorldState()
+    stats = advance(state, bodies, Parameters(dt=0.02))
+    assert (stats.step, stats.time, stats.contacts, stats.iterations) == (1, 0.02, 0, 0)
+    assert (state.step_count, state.time) == (1, 0.02)
+    np.testing.assert_allclose(bodies.center[blade], [0.01, 0.0, 0.0])
+    np.testing.assert_array_equal(bodies.force, np.zeros((1, 3)))

@@ -1,0 +1,62 @@
+"""A World's parts saved as one .npz and loaded back as they were."""
+
+import numpy as np
+import pytest
+
+from dozerlab.ndem.bodies import Bodies
+from dozerlab.ndem.params import Parameters
+from dozerlab.ndem.persist import load_world, save_world
+from dozerlab.ndem.state import SPHERE_FIELDS, WorldState
+from dozerlab.runtime import DozerlabError
+
+
+def _parts() -> tuple[Parameters, WorldState, Bodies]:
+    params = Parameters(dt=0.004, iterations=12, slabs=3, gravity=(0.0, 0.0, -1.62))
+    rng = np.random.default_rng(0)
+    state = WorldState(time=0.4, step_count=100)
+    state.append(
+        x=rng.normal(size=(4, 3)),
+        v=rng.normal(size=(4, 3)),
+        w=rng.normal(size=(4, 3)),
+        r=np.full(4, 0.05),
+        m=np.ones(4),
+        mu=np.full(4, 0.4),
+        mur=np.full(4, 0.1),
+        id=np.array([3, 1, 0, 2], dtype=np.int64),
+    )
+    state.warm.store(state.id, np.array([0]), np.array([-1]), np.arange(7.0)[None])
+    bodies = Bodies()
+    bodies.add_plane((0, 0, 0), (0, 0, 1), 0.5)
+    bodies.add_box((1, 0, 0.2), (0.02, 0.3, 0.2), True, 0.6, None)
+    bodies.force[1] = [10.0, 0.0, -2.0]
+    return params, state, bodies
+
+
+def test_round_trip_keeps_parameters_state_warm_start_and_bodies(tmp_path):
+    params, state, bodies = _parts()
+    save_world(tmp_path / "w.npz", params, state, bodies)
+    p, s, b = load_world(tmp_path / "w.npz")
+    assert (p.dt, p.iterations, p.slabs) == (0.004, 12, 3)
+    np.testing.assert_array_equal(p.gravity, [0.0, 0.0, -1.62])
+    assert (s.time, s.step_count) == (0.4, 100)
+    for name in SPHERE_FIELDS:
+        np.testing.assert_array_equal(getattr(s, name), getattr(state, name))
+    np.testing.assert_array_equal(s.warm.lam, state.warm.lam)
+    np.testing.assert_array_equal(s.warm.start, state.warm.start)
+    np.testing.assert_array_equal(b.kinematic, [False, True])
+    np.testing.assert_array_equal(b.force, bodies.force)
+    np.testing.assert_array_equal(b.load_center, b.center)
+
+
+def test_a_file_without_a_later_parameter_loads_its_default(tmp_path):
+    save_world(tmp_path / "w.npz", *_parts())
+    with np.load(tmp_path / "w.npz") as f:
+        arrays = {k: f[k] for k in f.files if k != "param_slabs"}
+    np.savez(tmp_path / "old.npz", **arrays)
+    assert load_world(tmp_path / "old.npz")[0].slabs == Parameters().slabs
+
+
+def test_a_file_of_another_format_is_refused(tmp_path):
+    np.savez(tmp_path / "other.npz", positions=np.zeros((2, 3)))
+    with pytest.raises(DozerlabError, match=r"is not a dozerlab\.ndem World file"):
+        load_world(tmp_path / "other.npz")

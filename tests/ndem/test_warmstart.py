@@ -1,0 +1,40 @@
+"""The warm start: last step's multipliers found again after the spatial re-sort."""
+
+import numpy as np
+
+from dozerlab.ndem.warmstart import WarmStart
+
+
+def _lam(normal: float, friction, rolling) -> list[float]:
+    return [normal, *friction, *rolling]
+
+
+def test_contacts_are_found_by_sphere_ids_after_the_slots_moved():
+    warm = WarmStart()
+    ids = np.array([0, 1, 2], dtype=np.int64)
+    # sphere 0 on sphere 1 (slots 0, 1) and sphere 2 on body 0 (j = -1)
+    ci, cj = np.array([0, 2]), np.array([1, -1])
+    lam = np.array(
+        [_lam(0.5, (0.1, 0.2, 0.0), (0.0, 0.3, 0.0)), _lam(0.7, (0.0, 0.4, 0.0), (0,) * 3)]
+    )
+    warm.store(ids, ci, cj, lam)
+
+    moved = np.array([2, 1, 0], dtype=np.int64)  # the re-sort reversed the slots
+    # the pair now comes as sphere 1 (slot 1) on sphere 0 (slot 2): its normal flipped; sphere 2
+    # (slot 0) still meets body 0; sphere 1 meets body 0 for the first time
+    ci2, cj2 = np.array([1, 0, 1]), np.array([2, -1, -1])
+    normals = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    got = warm.lookup(moved, ci2, cj2, normals)
+    np.testing.assert_allclose(got[0], _lam(0.5, (-0.1, -0.2, 0.0), (0.0, -0.3, 0.0)))
+    np.testing.assert_allclose(got[1], lam[1])
+    np.testing.assert_array_equal(got[2], np.zeros(7))
+
+
+def test_vectors_are_projected_onto_the_new_tangent_plane():
+    warm = WarmStart()
+    ids = np.array([0], dtype=np.int64)
+    warm.store(
+        ids, np.array([0]), np.array([-1]), np.array([_lam(1.0, (0.1, 0.2, 0.0), (0.3, 0, 0))])
+    )
+    got = warm.lookup(ids, np.array([0]), np.array([-1]), np.array([[1.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(got[0], _lam(1.0, (0.0, 0.2, 0.0), (0.0, 0.0, 0.0)))
