@@ -306,3 +306,14 @@ def report_context(cfg: dict[str, Any], results: Path) -> Any:
     from dozerlab.report.sections import Context
 
     return Context(cfg, results, tuple(P.sweep_points(cfg)))
+
+
+def import_entry(module: str) -> tuple[str, str]:
+    """Import an MLflow models-from-code entry ``module`` in a fresh interpreter (warnings come
+    once, when its class is defined); return the class name of the model it set, and stderr."""
+    import subprocess
+    import sys
+
+    code = f"import {module}; import mlflow.models.model as m; print(type(m.__mlflow_model__).__name__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.strip(), out.stderr

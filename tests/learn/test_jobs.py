@@ -100,17 +100,3 @@ def test_pyfunc_input_of_wrong_grid_is_refused(store_files):
     model = pyfunc.ForceModel("linear", (6, 6, 4))
     with pytest.raises(DozerlabError, match="trained on a \\(6, 6, 4\\) grid"):
         pyfunc.predict_arrays(model, _inputs(load_store(store_files["train"][0])))
-
-
-def test_loading_the_pyfunc_module_does_not_ask_for_type_hints():
-    # a fresh interpreter: the warning comes once, when the class is defined
-    import subprocess
-    import sys
-
-    out = subprocess.run(
-        [sys.executable, "-c", "import dozerlab.learn.pyfunc_entry"],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    assert "Add type hints" not in out.stderr

@@ -1,0 +1,41 @@
+"""Training of the evolution models: losses per epoch (per alpha for the ridge), the best kept."""
+
+import numpy as np
+import pytest
+
+from dozerlab.config import load_config
+from dozerlab.learn.dynamics.train import train_dynamics
+
+from .helpers import steady, translating
+
+CFG = load_config(
+    {"mlflow": {"enabled": False}, "learn": {"validation_block": 5}, "dynamics": {"val_rollout": 2}}
+)
+
+
+def test_persistence_has_no_loss_on_a_field_that_does_not_change():
+    seen = []
+    r = train_dynamics(
+        "persistence",
+        [steady(40), steady(40)],
+        CFG,
+        on_epoch=lambda *a: seen.append(a),
+        progress=False,
+    )
+    assert (r.train_loss, r.val_loss, r.best_epoch) == ([0.0], [0.0], 0)
+    assert seen == [(0, 0.0, 0.0)] and r.samples["train"] > r.samples["validation"] > 0
+    assert not r.model.training
+
+
+@pytest.fixture(scope="module")
+def moving():
+    return [translating(0), translating(1)]
+
+
+def test_the_ridge_tries_every_alpha_keeps_the_best_and_beats_persistence(moving):
+    ridge = train_dynamics("ridge", moving, CFG, progress=False)
+    persistence = train_dynamics("persistence", moving, CFG, progress=False)
+    assert len(ridge.train_loss) == len(ridge.val_loss) == len(CFG["dynamics"]["ridge_alphas"])
+    assert ridge.best_epoch == int(np.argmin(ridge.val_loss))
+    assert min(ridge.val_loss) < 0.1 * persistence.val_loss[0]
+    assert ridge.samples == persistence.samples

@@ -1,0 +1,99 @@
+"""What the trainers share: the ridge solvers, the divergence guard, early stopping."""
+
+import pytest
+import torch
+
+from dozerlab.learn.fitting import (
+    EarlyStopping,
+    NormalEquations,
+    TrainingDiverged,
+    device_for,
+    guard,
+    solve_ridge,
+)
+from dozerlab.runtime import DozerlabError
+
+W = torch.tensor([[1.5, -2.0], [0.0, 0.5], [3.0, 1.0]], dtype=torch.float64)
+B = torch.tensor([0.25, -1.0], dtype=torch.float64)
+
+
+def _data(n: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    x = torch.randn(n, 3, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    return x, x @ W + B
+
+
+def test_ridge_without_penalty_recovers_an_exact_linear_map():
+    x, y = _data(50)
+    w, b = solve_ridge(x, y, 0.0)
+    torch.testing.assert_close(w, W, atol=1e-6, rtol=0)
+    torch.testing.assert_close(b, B, atol=1e-6, rtol=0)
+    # more features than samples: solved in the dual, still fitting every sample
+    x2, y2 = _data(2)
+    w2, b2 = solve_ridge(x2, y2, 0.0)
+    torch.testing.assert_close(x2 @ w2 + b2, y2, atol=1e-6, rtol=0)
+
+
+def test_the_penalty_shrinks_the_weights_and_a_negative_one_is_refused():
+    x, y = _data(50)
+    w, _ = solve_ridge(x, y, 10.0)
+    assert w.norm() < 0.2 * W.norm()
+    with pytest.raises(ValueError, match="ridge alpha must be >= 0, got -1"):
+        solve_ridge(x, y, -1)
+
+
+def test_normal_equations_in_chunks_match_the_whole_and_weights_repeat_rows():
+    x, y = _data(60)
+    y = y + 0.1 * torch.randn(60, 2, generator=torch.Generator().manual_seed(1), dtype=y.dtype)
+    rows, targets = torch.cat([x, x[:10]]), torch.cat([y, y[:10]])  # the first ten rows twice
+    whole, chunks, weighted = NormalEquations(3, 2), NormalEquations(3, 2), NormalEquations(3, 2)
+    whole.add(rows, targets)
+    for i in range(0, 70, 25):
+        chunks.add(rows[i : i + 25], targets[i : i + 25])
+    weight = torch.ones(60, dtype=torch.float64)
+    weight[:10] = 2.0
+    weighted.add(x, y, weight)
+    for other in (chunks, weighted):
+        for a, b in zip(whole.solve(0.01), other.solve(0.01), strict=True):
+            torch.testing.assert_close(a, b, atol=1e-10, rtol=0)
+    # without a penalty: the least-squares fit, as solve_ridge finds it
+    for a, b in zip(whole.solve(0.0), solve_ridge(rows, targets, 0.0), strict=True):
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=0)
+
+
+def test_normal_equations_without_samples_are_refused():
+    empty = NormalEquations(3, 2)
+    x, y = _data(5)
+    empty.add(x, y, torch.zeros(5, dtype=torch.float64))
+    with pytest.raises(DozerlabError, match="without samples"):
+        empty.solve(0.1)
+    with pytest.raises(ValueError, match="ridge alpha must be >= 0"):
+        empty.solve(-0.5)
+
+
+def test_guard_names_what_diverged():
+    guard(1e30, "the loss")  # large but finite: fine
+    with pytest.raises(TrainingDiverged, match=r"training diverged: the loss is nan; .* lower the"):
+        guard(float("nan"), "the loss")
+    with pytest.raises(TrainingDiverged, match=r"is inf; .* raise the ridge alpha"):
+        guard(float("inf"), "w", "raise the ridge alpha")
+
+
+def test_early_stopping_waits_patience_epochs_and_restores_the_best_state():
+    model = torch.nn.Linear(2, 1)
+    seen = []
+    stop = EarlyStopping(model, patience=2, on_epoch=lambda *a: seen.append(a))
+    stops = []
+    for epoch, val in enumerate([3.0, 2.0, 2.5, 2.6]):
+        with torch.no_grad():
+            model.bias.fill_(float(epoch))
+        stops.append(stop.end_epoch(epoch, 10.0 - epoch, val))
+    assert stops == [False, False, False, True]
+    assert (stop.best, stop.best_epoch) == (2.0, 1) and seen[1] == (1, 9.0, 2.0)
+    assert stop.val_loss == [3.0, 2.0, 2.5, 2.6]
+    stop.restore()
+    assert model.bias.item() == 1.0
+
+
+def test_device_is_the_named_one_or_the_best_present():
+    assert device_for("cpu") == torch.device("cpu")
+    assert device_for().type == ("cuda" if torch.cuda.is_available() else "cpu")

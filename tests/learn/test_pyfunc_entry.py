@@ -1,0 +1,9 @@
+"""The force model's MLflow models-from-code entry point."""
+
+from tests.helpers import import_entry
+
+
+def test_loading_the_pyfunc_module_sets_the_model_and_does_not_ask_for_type_hints():
+    model, err = import_entry("dozerlab.learn.pyfunc_entry")
+    assert model == "ForcePyfunc"
+    assert "Add type hints" not in err
