@@ -1,0 +1,44 @@
+"""``dozerlab reduce``: an aligned store and a bed file written, a missing model refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from dozerlab.cli import main
+from dozerlab.fields.store import open_store
+from dozerlab.scenarios.bed import Bed
+from tests.helpers import REDUCED_RUN as CONFIG
+
+
+def _reduce_argv(tmp, dynamics: str, out: str) -> list[str]:
+    return [
+        *("reduce", "--bed", str(tmp / "bed.npz")),
+        *("--trajectory", str(tmp / "speed~0.5_depth~0.06.csv"), "--dynamics", dynamics),
+        *("--ndem", str(tmp / "ndem.zarr"), "--force-model", str(tmp / "linear")),
+        *("--config", json.dumps(CONFIG), "--out", str(tmp / f"{out}.zarr")),
+        *("--state", str(tmp / f"{out}.npz")),
+    ]
+
+
+def test_reduce_command_writes_an_aligned_store_and_a_bed_file(ndem_run):
+    tmp, _ = ndem_run
+    assert main([*_reduce_argv(tmp, "replay", "cli"), "--depth", "0.06"]) == 0
+    ds, nd = open_store(tmp / "cli.zarr"), open_store(tmp / "ndem.zarr")
+    assert dict(ds.sizes) == dict(nd.sizes)
+    np.testing.assert_allclose(ds["time"].values, nd["time"].values)
+    np.testing.assert_allclose(ds["blade_position"].values, nd["blade_position"].values)
+    assert ds.attrs["dynamics_model"] == "replay" and ds.attrs["force_model"] == "linear"
+    assert ds.attrs["depth"] == 0.06
+    assert ds.attrs["wall_time_s"] > 0 and nd.attrs["wall_time_s"] > 0
+    assert np.isfinite(ds["force"].values).all()
+    state = Bed.load(tmp / "cli.npz")
+    assert state.count == Bed.load(tmp / "bed.npz").count == Bed.load(tmp / "ndem.npz").count
+
+
+def test_a_missing_dynamics_model_is_refused(ndem_run, capsys):
+    tmp, _ = ndem_run
+    assert main(_reduce_argv(tmp, str(tmp / "nowhere"), "x")) == 2
+    assert "not an MLflow model directory" in capsys.readouterr().err
+    assert not (tmp / "x.zarr").exists()
