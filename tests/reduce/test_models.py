@@ -1,0 +1,81 @@
+"""The learned parts the reduced loop drives: field models (replay, pyfunc) and the force model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dozerlab.learn.data import load_store
+from dozerlab.reduce.models import (
+    REPLAY,
+    ForcePredictor,
+    PyfuncFieldModel,
+    ReplayFieldModel,
+    load_field_model,
+)
+from dozerlab.runtime import DozerlabError
+
+
+def test_replay_answers_with_the_stores_next_rows_and_repeats_its_last(ndem_run):
+    tmp, _ = ndem_run
+    store = load_store(tmp / "ndem.zarr")
+    replay = load_field_model(REPLAY, store.grid, tmp / "ndem.zarr")
+    assert isinstance(replay, ReplayFieldModel) and (replay.history, replay.horizon) == (1, 1)
+    three = ReplayFieldModel(tmp / "ndem.zarr", horizon=3)
+    last = store.density.shape[0] - 1
+    v, rho = three.predict(store.velocity[:1], store.density[:1], store.blade_velocity[:4], 0)
+    np.testing.assert_array_equal(rho, store.density[1:4])
+    np.testing.assert_array_equal(v, store.velocity[1:4])
+    _, rho = three.predict(
+        store.velocity[:1], store.density[:1], store.blade_velocity[:4], last - 1
+    )
+    np.testing.assert_array_equal(rho, store.density[[last, last, last]])
+
+
+def test_models_that_are_not_there_are_named(tmp_path):
+    with pytest.raises(DozerlabError, match=r"needs the point's NDEM store \(--ndem\)"):
+        load_field_model(REPLAY, (6, 5, 4))
+    with pytest.raises(DozerlabError, match="not an MLflow model directory"):
+        load_field_model(tmp_path, (6, 5, 4))
+    with pytest.raises(DozerlabError, match="not a dozerlab force model directory"):
+        ForcePredictor(tmp_path)
+
+
+def test_the_force_model_reads_only_its_history_of_rows(ndem_run):
+    tmp, config = ndem_run
+    store = load_store(tmp / "ndem.zarr")
+    forces = ForcePredictor(tmp / "linear")
+    assert forces.history == config["learn"]["history"] == 2 and forces.name == "linear"
+    rows = slice(3, 8)
+    f, t = forces.predict(store.velocity[rows], store.density[rows], store.blade_velocity[rows])
+    f2, t2 = forces.predict(store.velocity[6:8], store.density[6:8], store.blade_velocity[6:8])
+    assert f.shape == t.shape == (3,) and np.isfinite(f).all()
+    np.testing.assert_array_equal(f, f2)
+    np.testing.assert_array_equal(t, t2)
+
+
+def test_a_pyfunc_evolution_model_predicts_as_the_model_itself(ndem_run, tmp_path):
+    from dozerlab.learn.dynamics import pyfunc
+    from dozerlab.learn.dynamics.models import DynamicsModel
+
+    tmp, _ = ndem_run
+    store = load_store(tmp / "ndem.zarr")
+    model = DynamicsModel("persistence", store.grid, 1, 2, store.row_dt, store.bin_size)
+    arrays = {
+        "velocity": store.velocity,
+        "density": store.density,
+        "blade_velocity": store.blade_velocity,
+    }
+    pyfunc.save(model, {"train_points": []}, tmp_path / "persistence", arrays)
+    field = PyfuncFieldModel(tmp_path / "persistence", store.grid)
+    assert (field.name, field.history, field.horizon) == ("persistence", 1, 2)
+    v, rho = field.predict(store.velocity[4:5], store.density[4:5], store.blade_velocity[4:7], 4)
+    window = {
+        "velocity": store.velocity[None, 4:5],
+        "density": store.density[None, 4:5],
+        "blade_velocity": store.blade_velocity[None, 4:7],
+    }
+    expected = pyfunc.predict_arrays(model, window)
+    assert v.shape == (2, *store.grid, 3) and rho.shape == (2, *store.grid)
+    np.testing.assert_allclose(rho, expected["density"][0], rtol=1e-6)
+    np.testing.assert_allclose(v, expected["velocity"][0], rtol=1e-6, atol=1e-7)
