@@ -319,14 +319,10 @@ def import_entry(module: str) -> tuple[str, str]:
     return out.stdout.strip(), out.stderr
 
 
-#: The reduce tests' run: the tiny run's bed and blade, a linear force model of one epoch.
+#: The reduce tests' run: the tiny run's bed, blade and path sampled at every step, and a linear
+#: force model of one epoch.
 REDUCED_RUN = {
-    "solver": {"dt": 0.01, "iterations": 30},
-    "material": {"youngs_modulus": 0.0},
-    "bed": {"length": 0.8, "width": 0.36, "radius": 0.03},
-    "scenarios": {"hill": {"goal_height": 0.08}},
-    "blade": {"width": 0.3, "height": 0.2, "thickness": 0.03, "start_gap": 0.05},
-    "trajectory": {"subdivisions": [40, 4], "approach_steps": 3},
+    **TINY_RUN,
     "sampling": {"length": 0.3, "below_edge": 0.05, "bins": [6, 5, 4], "chunk_steps": 8},
     "learn": {"epochs": 1, "history": 2, "validation_fraction": 0.2, "validation_block": 0},
     "reduced": {"projection": {"iterations": 8}},
