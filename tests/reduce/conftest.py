@@ -45,15 +45,15 @@ def ndem_run(tmp_path_factory):
     bed.save(tmp / "bed.npz")
     traj = plan_trajectory(bed, 0.5, 0.06, config)
     traj.save_csv(tmp / "speed~0.5_depth~0.06.csv")
-    simulate(
-        tmp / "bed.npz",
-        tmp / "speed~0.5_depth~0.06.csv",
-        config,
-        tmp / "ndem.zarr",
-        state_out=tmp / "ndem.npz",
-    )
-    with pytest.MonkeyPatch.context() as mp:  # the model's MLflow files stay in tmp
+    with pytest.MonkeyPatch.context() as mp:  # the runs' MLflow files stay in tmp
         mp.chdir(tmp)
         mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp / 'mlflow.db'}")
+        simulate(
+            tmp / "bed.npz",
+            tmp / "speed~0.5_depth~0.06.csv",
+            config,
+            tmp / "ndem.zarr",
+            state_out=tmp / "ndem.npz",
+        )
         train_job("linear", [tmp / "ndem.zarr"], config, tmp / "linear", progress=False)
     return tmp, config
