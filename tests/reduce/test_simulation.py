@@ -97,7 +97,7 @@ def test_grains_above_the_volume_ride_with_it_and_fall_once_it_lets_them_go():
     np.testing.assert_allclose(state.x[0], above[0] + [h * 0.02, 0.0, 0.0], atol=1e-12)
     # the blade has moved on: the grain the field carried falls, slow as it was
     z = state.x[0, 2]
-    for k in range(3):
+    for _ in range(3):
         state.step(field, np.full(grid.bins, 1500.0), np.array([5.0, 0.0, 0.5]), h)
     assert state.x[0, 2] == pytest.approx(z - 6 * 9.81 * h * h, rel=1e-9)  # h·g·(1 + 2 + 3)·h
 
