@@ -38,7 +38,7 @@ def main() -> None:
     args = ap.parse_args()
     os.environ["DOZERLAB_MLFLOW"] = "0"
     set_threads(args.threads)
-    from dozerlab.fields.run import simulate
+    from dozerlab.fields.jobs import simulate
     from dozerlab.reduce.compare import compare_point
     from dozerlab.reduce.models import ForcePredictor, load_field_model
     from dozerlab.reduce.run import reduce_run
