@@ -2,15 +2,17 @@
 and machine, in one process run.
 
     python benchmarks/reduce_loop.py --results results --scenario hill --speed 0.875 \\
-        --depth 0.045 [--config config/config.yaml] [--threads 1] [--dynamics replay ridge]
+        --depth 0.045 [--config config/config.yaml] [--threads 1] [--dynamics replay ridge] \\
+        [--chaos]
 
-Runs NDEM (``fields.run.simulate``) on the point's bed and trajectory under ``--results``, then
+Runs NDEM (``fields.jobs.simulate``) on the point's bed and trajectory under ``--results``, then
 the reduced loop with each dynamics model (``replay``: the new NDEM run's own fields;
 otherwise ``results/dynamics/{model}``) and the config's force model, into a temporary folder,
 and prints for each: the stepping loop's wall time and its speed-up over NDEM's (per simulated
 second: the same trajectory), the mean time per reduced step of each phase (selection,
 advection, projection, sampling, field and force inference, store writes) and of the NDEM
-warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy figures.
+warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy figures;
+with ``--chaos``, the same figures for a second NDEM run from the bed moved by 1 µm first.
 """
 
 from __future__ import annotations
@@ -20,10 +22,21 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.runtime import set_threads
+
+
+def _accuracy(c: dict[str, Any]) -> str:
+    return (
+        f"height accuracy {c['height_accuracy']:.3f}, force x rel. RMSE "
+        f"{c['force_x_rel_rmse']:.3f}, velocity rel. L2 {c['velocity_rel_l2']:.3f}, "
+        f"density rel. L2 {c['density_rel_l2']:.3f}, EMD {1e3 * c['final_emd_m']:.1f} mm"
+    )
 
 
 def main() -> None:
@@ -35,13 +48,20 @@ def main() -> None:
     ap.add_argument("--depth", type=float, required=True)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dynamics", nargs="+", default=["replay"])
+    ap.add_argument(
+        "--chaos",
+        action="store_true",
+        help="also score a second NDEM run from the bed moved by 1 µm: what two NDEM runs that "
+        "differ by nothing disagree by (the floor of every figure)",
+    )
     args = ap.parse_args()
     os.environ["DOZERLAB_MLFLOW"] = "0"
     set_threads(args.threads)
-    from dozerlab.fields.run import simulate
+    from dozerlab.fields.jobs import simulate
     from dozerlab.reduce.compare import compare_point
     from dozerlab.reduce.models import ForcePredictor, load_field_model
     from dozerlab.reduce.run import reduce_run
+    from dozerlab.scenarios.bed import Bed
 
     cfg = load_config(args.config)
     point = P.SweepPoint(args.scenario, args.speed, args.depth)
@@ -54,6 +74,16 @@ def main() -> None:
         m = simulate(bed, traj, cfg, t / "ndem.zarr", state_out=t / "ndem.npz")
         print(f"{point.scenario} {point.name}, {args.threads} thread(s)")
         print(f"NDEM: loop {m['wall_time_s']:.2f} s, job {time.perf_counter() - t0:.2f} s")
+        if args.chaos:
+            moved = Bed.load(bed)
+            rng = np.random.default_rng(0)
+            moved.positions = moved.positions + rng.normal(scale=1e-6, size=moved.positions.shape)
+            moved.save(t / "bed_moved.npz")
+            simulate(t / "bed_moved.npz", traj, cfg, t / "chaos.zarr", state_out=t / "chaos.npz")
+            c, _ = compare_point(
+                t / "ndem.zarr", t / "chaos.zarr", bed, t / "ndem.npz", t / "chaos.npz", cfg
+            )
+            print(f"chaos floor (NDEM from the bed moved by 1 µm): {_accuracy(c)}")
         for name in args.dynamics:
             source = name if name == "replay" else P.dynamics_model_path(res, name)
             fm = load_field_model(source, tuple(cfg["sampling"]["bins"]), t / "ndem.zarr")
@@ -81,11 +111,7 @@ def main() -> None:
                 f"{r['warmup_s']:.2f} s; ms per step: {phases}; grains moved per step "
                 f"{r['active_grains_mean']:.0f}; largest overlap {r['max_overlap']:.3f} r"
             )
-            print(
-                f"    height accuracy {c['height_accuracy']:.3f}, force x rel. RMSE "
-                f"{c['force_x_rel_rmse']:.3f}, velocity rel. L2 {c['velocity_rel_l2']:.3f}, "
-                f"density rel. L2 {c['density_rel_l2']:.3f}, EMD {1e3 * c['final_emd_m']:.1f} mm"
-            )
+            print(f"    {_accuracy(c)}")
 
 
 if __name__ == "__main__":

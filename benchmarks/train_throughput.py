@@ -17,7 +17,7 @@ import torch
 
 from dozerlab.config import load_config
 from dozerlab.learn.data import from_arrays
-from dozerlab.learn.models import MODEL_NAMES
+from dozerlab.learn.names import MODEL_NAMES
 from dozerlab.learn.train import train_model
 from dozerlab.runtime import set_threads
 

@@ -101,6 +101,14 @@ def test_stores_open_and_nothing_half_written_is_left(quick):
     assert not list((quick / "results").rglob("*.tmp-*"))
 
 
+def test_every_long_job_logs_its_progress(quick):
+    # the bed build runs with the bar off (--no-progress): its log must still show it settling
+    bed_log = (quick / "logs" / "bed" / "hill.log").read_text()
+    assert "bed hill step 100 " in bed_log and "per particle" in bed_log, bed_log[-2000:]
+    for log_file in (quick / "logs" / "simulate").rglob("*.log"):
+        assert "ms/step" in log_file.read_text(), log_file
+
+
 def test_models_reload_through_mlflow(quick):
     import mlflow
 

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import mlflow
 import numpy as np
 import pytest
 
+from dozerlab.config import load_config
+from dozerlab.fields.store import open_store
 from dozerlab.learn.data import load_store
+from dozerlab.learn.dynamics import pyfunc
+from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.reduce.models import (
     REPLAY,
     ForcePredictor,
@@ -14,6 +19,7 @@ from dozerlab.reduce.models import (
     load_field_model,
 )
 from dozerlab.runtime import DozerlabError
+from tests.learn.dynamics.helpers import translating
 
 
 def test_replay_answers_with_the_stores_next_rows_and_repeats_its_last(ndem_run):
@@ -79,3 +85,42 @@ def test_a_pyfunc_evolution_model_predicts_as_the_model_itself(ndem_run, tmp_pat
     assert v.shape == (2, *store.grid, 3) and rho.shape == (2, *store.grid)
     np.testing.assert_allclose(rho, expected["density"][0], rtol=1e-6)
     np.testing.assert_allclose(v, expected["velocity"][0], rtol=1e-6, atol=1e-7)
+
+
+def test_the_loops_direct_model_calls_match_the_pyfunc(ndem_run):
+    tmp, _ = ndem_run
+    forces = ForcePredictor(tmp / "linear")
+    nd = open_store(tmp / "ndem.zarr")
+    v, rho, vb = (
+        nd[k].values.astype(np.float32) for k in ("velocity", "density", "blade_velocity")
+    )
+    k = 5  # the loop passes the rows up to the current one; the pyfunc predicts each of them
+    force, torque = forces.predict(v[:k], rho[:k], vb[:k])
+    frame = forces.model.predict({"velocity": v[:k], "density": rho[:k], "blade_velocity": vb[:k]})
+    np.testing.assert_allclose(np.r_[force, torque], frame.to_numpy()[-1], rtol=1e-5, atol=1e-4)
+
+
+def test_the_loops_direct_field_model_calls_match_the_pyfunc(tmp_path):
+    cfg = load_config(
+        {
+            "mlflow": {"enabled": False},
+            "learn": {"validation_block": 5},
+            "dynamics": {"epochs": 1, "samples_per_epoch": 8, "history": 2, "horizon": 2},
+        }
+    )
+    stores = [translating(i, rows=30) for i in range(2)]
+    model = train_dynamics("unet", stores, cfg, progress=False).model
+    arrays = {k: getattr(stores[0], k) for k in ("velocity", "density", "blade_velocity")}
+    pyfunc.save(model, {"train_points": []}, tmp_path / "unet", arrays)
+    held = translating(7, rows=30)
+    loop = PyfuncFieldModel(tmp_path / "unet", held.grid)
+    v, rho = loop.predict(held.velocity[3:5], held.density[3:5], held.blade_velocity[3:7], 4)
+    want = mlflow.pyfunc.load_model(str(tmp_path / "unet")).predict(
+        {
+            "velocity": held.velocity[None, 3:5],
+            "density": held.density[None, 3:5],
+            "blade_velocity": held.blade_velocity[None, 3:7],
+        }
+    )
+    np.testing.assert_allclose(v, want["velocity"][0], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(rho, want["density"][0], rtol=1e-5, atol=1e-5)

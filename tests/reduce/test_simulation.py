@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.ndem.bodies import Bodies as NdemBodies
@@ -52,3 +53,19 @@ def test_grains_in_the_volume_move_with_the_field_and_the_others_rest_or_fly():
     np.testing.assert_array_equal(state.x[3], resting)  # at rest outside: frozen
     fly_v = np.array([0.5, 0.0, 1.0 - 9.81 * h])
     np.testing.assert_allclose(state.x[4], np.array(flying) + h * fly_v, atol=1e-12)
+
+
+def test_grains_above_the_volume_ride_with_it_and_fall_once_it_lets_them_go():
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    above = np.array([[0.2, 0.0, 1.6]])  # over the volume (top 0.9 m) and its 2-bin margin
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 0.02  # slower than reduced.rest_speed
+    h = 0.01
+    state = _state(above, np.zeros_like(above), grid)
+    state.step(field, np.full(grid.bins, 1500.0), np.array([0.0, 0.0, 0.5]), h)
+    np.testing.assert_allclose(state.x[0], above[0] + [h * 0.02, 0.0, 0.0], atol=1e-12)
+    # the blade has moved on: the grain the field carried falls, slow as it was
+    z = state.x[0, 2]
+    for _ in range(3):
+        state.step(field, np.full(grid.bins, 1500.0), np.array([5.0, 0.0, 0.5]), h)
+    assert state.x[0, 2] == pytest.approx(z - 6 * 9.81 * h * h, rel=1e-9)  # h·g·(1 + 2 + 3)·h

@@ -19,7 +19,10 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+import torch
 
+from dozerlab.learn.dynamics.pyfunc import predict_arrays
+from dozerlab.learn.pyfunc import check_inputs, with_history
 from dozerlab.runtime import DozerlabError
 
 #: The dynamics-model name that replays the point's own NDEM store.
@@ -54,6 +57,9 @@ class PyfuncFieldModel:
         if not (path / "MLmodel").is_file():
             raise DozerlabError(f"not an MLflow model directory (no MLmodel): {path}")
         self.model = mlflow.pyfunc.load_model(str(path))
+        # The loop calls the network itself: MLflow's per-call input handling cost as much as
+        # the network on the quick sweep's grid (BENCHMARKS.md, "Reduced simulation").
+        self.module = self.model.unwrap_python_model().model
         meta = self.model.metadata.metadata or {}
         missing = [k for k in ("history", "horizon") if k not in meta]
         if missing:
@@ -66,14 +72,15 @@ class PyfuncFieldModel:
     def predict(
         self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray, row: int
     ) -> tuple[np.ndarray, np.ndarray]:
-        out = self.model.predict(
+        out = predict_arrays(
+            self.module,
             {
-                "velocity": np.ascontiguousarray(velocity[None], dtype=np.float32),
-                "density": np.ascontiguousarray(density[None], dtype=np.float32),
-                "blade_velocity": np.ascontiguousarray(blade_velocity[None], dtype=np.float32),
-            }
+                "velocity": velocity[None],
+                "density": density[None],
+                "blade_velocity": blade_velocity[None],
+            },
         )
-        v, rho = np.asarray(out["velocity"]), np.asarray(out["density"])
+        v, rho = out["velocity"], out["density"]
         m = self.horizon
         if v.shape != (1, m, *self.grid, 3) or rho.shape != (1, m, *self.grid):
             raise DozerlabError(
@@ -123,6 +130,7 @@ class ForcePredictor:
             raise DozerlabError(f"not a dozerlab force model directory (no {meta_path})")
         self.history = int(json.loads(meta_path.read_text()).get("history", 1))
         self.model = mlflow.pyfunc.load_model(str(path))
+        self.module = self.model.unwrap_python_model().model
         self.name = path.name
 
     def predict(
@@ -130,14 +138,14 @@ class ForcePredictor:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Force (3,) N and torque (3,) N·m of the last of the given consecutive rows (T, …)."""
         k = min(self.history, density.shape[0])
-        out = self.model.predict(
-            {
-                "velocity": np.ascontiguousarray(velocity[-k:], dtype=np.float32),
-                "density": np.ascontiguousarray(density[-k:], dtype=np.float32),
-                "blade_velocity": np.ascontiguousarray(blade_velocity[-k:], dtype=np.float32),
-            }
+        arrays = check_inputs(
+            {"velocity": velocity[-k:], "density": density[-k:], "blade_velocity": blade_velocity[-k:]},
+            self.module.grid,
         )
-        row = np.asarray(out, dtype=np.float64)[-1]
+        # only the last row's window: the pyfunc would run the network on all k of them
+        v, rho, vb = (t[-1:] for t in with_history(arrays, self.module.history))
+        with torch.no_grad():
+            row = self.module(v, rho, vb)[0].double().numpy()
         return row[:3], row[3:6]
 
 
