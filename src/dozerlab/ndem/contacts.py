@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from dozerlab.ndem.broadphase import hit_buffers
+
 PLANE = 0
 BOX = 1
 
@@ -85,12 +87,7 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
             if g > -margin[i]:
                 c += 1
         counts[i + 1] = c
-    off = np.cumsum(counts)
-    m = off[n]
-    si = np.empty(m, dtype=np.int64)
-    sb = np.empty(m, dtype=np.int64)
-    nrm = np.empty((m, 3))
-    gap = np.empty(m)
+    off, si, sb, nrm, gap = hit_buffers(counts)
     for i in prange(n):
         k = off[i]
         for b in range(nb):
