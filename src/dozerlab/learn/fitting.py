@@ -1,5 +1,6 @@
-"""Pieces every trainer shares: the device, the divergence guard and the closed-form ridge
-solvers (one on a design matrix held whole, one on normal equations accumulated in chunks)."""
+"""Pieces every trainer shares: the device, the samples as tensors, the divergence guard and the
+closed-form ridge solvers (one on a design matrix held whole, one on normal equations
+accumulated in chunks)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from collections.abc import Callable
 
 import torch
 
+from dozerlab.learn.data import Samples
 from dozerlab.runtime import DozerlabError
 
 
@@ -19,6 +21,20 @@ class TrainingDiverged(DozerlabError):
 def device_for(name: str | None = None) -> torch.device:
     """``name`` if given, else CUDA when present, else CPU."""
     return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+class SampleTensors:
+    """The per-row store arrays of ``samples`` (velocity, density, blade_velocity) as tensors on
+    ``device``; a trainer's batches gather rows of them by index."""
+
+    def __init__(self, samples: Samples, device: torch.device) -> None:
+        self.samples, self.device = samples, device
+        self.velocity = torch.from_numpy(samples.velocity).to(device)
+        self.density = torch.from_numpy(samples.density).to(device)
+        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+
+    def __len__(self) -> int:
+        return len(self.samples)
 
 
 def guard(value: float, what: str, hint: str = "lower the learning rate") -> None:

@@ -15,6 +15,7 @@ from tqdm import tqdm
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
 from dozerlab.learn.fitting import (
     EarlyStopping,
+    SampleTensors,
     TrainingDiverged,
     device_for,
     guard,
@@ -41,18 +42,13 @@ class TrainResult:
     model_uri: str = ""
 
 
-class Batches:
-    """The samples as tensors on ``device``; ``get(sel)`` gathers one batch by index."""
+class Batches(SampleTensors):
+    """The samples and their targets as tensors on ``device``; ``get(sel)`` gathers one batch
+    by index."""
 
     def __init__(self, samples: Samples, device: torch.device) -> None:
-        self.samples, self.device = samples, device
-        self.velocity = torch.from_numpy(samples.velocity).to(device)
-        self.density = torch.from_numpy(samples.density).to(device)
-        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+        super().__init__(samples, device)
         self.target = torch.from_numpy(samples.target).to(device)
-
-    def __len__(self) -> int:
-        return len(self.samples)
 
     def get(self, sel: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(velocity, density, blade_velocity) with a history axis, and the (B, 6) targets."""
