@@ -74,4 +74,4 @@ def configure(args: argparse.Namespace, threads_key: str | None = None) -> dict[
 def job(name: str) -> Callable[..., Any]:
     """The job function ``module:function``, imported when a handler runs (not for --help)."""
     module, _, function = name.partition(":")
-    return getattr(importlib.import_module(module), function)  # type: ignore[no-any-return]
+    return getattr(importlib.import_module(module), function)

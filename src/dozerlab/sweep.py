@@ -235,7 +235,7 @@ def _per_model(kind: str, what: str) -> Callable[[str | Path, str], Path]:
     (wildcard,) = (name for _, name, _, _ in Formatter().parse(PATHS[kind]) if name)
 
     def path(results: str | Path, model: str) -> Path:
-        return _path(kind, results, **{wildcard: model})
+        return _path(kind, results, None, **{wildcard: model})
 
     path.__name__ = f"{kind}_path"
     path.__doc__ = f"``results/{PATHS[kind]}``: {what}."

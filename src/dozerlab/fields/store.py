@@ -351,8 +351,12 @@ def write_store(
     for name in SCHEMA:
         if len(arrays[name]) != time.size:
             raise ValueError(f"{name} has {len(arrays[name])} steps but time has {time.size}")
-    coords = {k: arrays[k] for k in ("x", "y", "z")}
-    options = {"chunk_steps": chunk_steps, "codec": codec, "inner_steps": inner_steps}
+    coords: dict[str, Any] = {k: arrays[k] for k in ("x", "y", "z")}
+    options: dict[str, Any] = {
+        "chunk_steps": chunk_steps,
+        "codec": codec,
+        "inner_steps": inner_steps,
+    }
     with FieldStoreWriter(path, attrs=attrs, **coords, **options) as w:
         for i in range(time.size):
             w.append(float(time[i]), *(arrays[name][i] for name in SCHEMA))

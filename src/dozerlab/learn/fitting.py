@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable
+from typing import Any, TypedDict
 
 import torch
 
@@ -21,6 +22,31 @@ class TrainingDiverged(DozerlabError):
 def device_for(name: str | None = None) -> torch.device:
     """``name`` if given, else CUDA when present, else CPU."""
     return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+#: ``on_epoch(epoch, train_loss, val_loss)``, called after each epoch.
+EpochCallback = Callable[[int, float, float], None]
+
+
+class FitOptions(TypedDict, total=False):
+    """How a training runs, the keywords every trainer takes: ``device`` (a torch device name;
+    default CUDA when present, else CPU), ``on_epoch`` (an :data:`EpochCallback`; default none)
+    and ``progress`` (a tqdm bar on stderr; default True)."""
+
+    device: str | None
+    on_epoch: EpochCallback | None
+    progress: bool
+
+
+def fit_start(
+    config: dict[str, Any], options: FitOptions
+) -> tuple[int, torch.device, EpochCallback | None, bool]:
+    """A trainer's start: torch seeded with the config's ``seed``; returns the seed, the
+    device, the epoch callback and the progress flag of ``options`` (defaults filled in)."""
+    seed = int(config.get("seed", 0))
+    torch.manual_seed(seed)
+    device = device_for(options.get("device"))
+    return seed, device, options.get("on_epoch"), options.get("progress", True)
 
 
 class SampleTensors:
@@ -119,7 +145,8 @@ class NormalEquations:
 class EarlyStopping:
     """The epochs' losses, the model's best state by validation loss, and when to stop:
     ``end_epoch`` records an epoch (and passes it to ``on_epoch``) and says whether ``patience``
-    epochs in a row brought no better validation loss; ``restore`` loads the best state."""
+    epochs in a row brought no better validation loss; ``restore`` loads the best state and
+    returns the history."""
 
     def __init__(
         self,
@@ -145,5 +172,8 @@ class EarlyStopping:
         self.waited += 1
         return self.waited >= self.patience
 
-    def restore(self) -> None:
+    def restore(self) -> tuple[list[float], list[float], int]:
+        """Load the best state; returns the training and validation losses per epoch and the
+        best epoch (a training result's history)."""
         self.model.load_state_dict(self.state)
+        return self.train_loss, self.val_loss, self.best_epoch

@@ -69,7 +69,9 @@ def _body_test(x, r, margin, kind, c, rot, ext, nrm):
 
 
 @njit(parallel=True, cache=True)
-def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+def body_contacts(
+    pos, radii, margin, kind, bpos, brot, bext, bnormal
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
 
     Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m,
