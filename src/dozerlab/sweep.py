@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.config import ConfigError
+from dozerlab.runtime import ConfigError
 
 ROLES = ("train", "interpolation", "extrapolation")
 #: What a speed or depth looks like in a path.
@@ -99,7 +99,7 @@ def parse_point(path: str | Path, role: str = "train") -> SweepPoint:
 def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
     """Every point of the validated config's sweep: the training grid, then the held-out points.
 
-    Raises :class:`~dozerlab.config.ConfigError` when a held-out point is also a training point
+    Raises :class:`~dozerlab.runtime.ConfigError` when a held-out point is also a training point
     (the models would see it in training) or is listed twice.
     """
     sweep = cfg["sweep"]
