@@ -24,11 +24,7 @@ import jsonschema
 import yaml
 from jsonschema.protocols import Validator
 
-from dozerlab.runtime import DozerlabError
-
-
-class ConfigError(DozerlabError, ValueError):
-    """A configuration value outside what the schema allows."""
+from dozerlab.runtime import ConfigError
 
 
 class ConfigWarning(UserWarning):
@@ -231,7 +227,7 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     # A job gets only the sections it reads (the rest are defaults): the sweep's checks apply
     # where a sweep is given, so a default sweep never fails against a user's bed.
     if "sweep" in (config or {}):
-        from dozerlab.sweep import sweep_points  # sweep builds on this module
+        from dozerlab.sweep import sweep_points  # here, not at the top: it imports numpy
 
         sweep_points(doc)
         check_cuts(doc)

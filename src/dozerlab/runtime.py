@@ -29,6 +29,12 @@ class DozerlabError(Exception):
     """An error the user can act on; the CLI prints its message without a traceback."""
 
 
+class ConfigError(DozerlabError, ValueError):
+    """A configuration value outside what the schema allows (raised by :mod:`dozerlab.config`
+    and by :mod:`dozerlab.sweep`, which builds on it; here so that neither imports the other
+    for it)."""
+
+
 def set_threads(n: int) -> int:
     """Limit numba, torch and BLAS to ``n`` threads (the Snakemake rule's ``threads``).
 

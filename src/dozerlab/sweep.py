@@ -10,14 +10,15 @@ paths it asks for are the ones a user types, and :func:`parse_point` reads any o
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from string import Formatter
 from typing import Any
 
 import numpy as np
 
-from dozerlab.config import ConfigError
+from dozerlab.runtime import ConfigError
 
 ROLES = ("train", "interpolation", "extrapolation")
 #: What a speed or depth looks like in a path.
@@ -98,7 +99,7 @@ def parse_point(path: str | Path, role: str = "train") -> SweepPoint:
 def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
     """Every point of the validated config's sweep: the training grid, then the held-out points.
 
-    Raises :class:`~dozerlab.config.ConfigError` when a held-out point is also a training point
+    Raises :class:`~dozerlab.runtime.ConfigError` when a held-out point is also a training point
     (the models would see it in training) or is listed twice.
     """
     sweep = cfg["sweep"]
@@ -227,31 +228,23 @@ def reduce_benchmark_path(results: str | Path, dynamics_model: str, point: Sweep
     return _path("reduce_benchmark", results, point, dynamics_model=dynamics_model)
 
 
-def reduced_comparison_path(results: str | Path, dynamics_model: str) -> Path:
-    """``results/reduced/{dynamics_model}.json``: the reduced runs measured against NDEM."""
-    return _path("reduced_comparison", results, dynamics_model=dynamics_model)
+def _per_model(kind: str, what: str) -> Callable[[str | Path, str], Path]:
+    """The path function ``(results, model) -> Path`` of a result kept per model (``what`` it
+    is): the template ``PATHS[kind]`` with its one wildcard (``{model}`` or ``{dynamics_model}``)
+    filled."""
+    (wildcard,) = (name for _, name, _, _ in Formatter().parse(PATHS[kind]) if name)
+
+    def path(results: str | Path, model: str) -> Path:
+        return _path(kind, results, None, **{wildcard: model})
+
+    path.__name__ = f"{kind}_path"
+    path.__doc__ = f"``results/{PATHS[kind]}``: {what}."
+    return path
 
 
-def model_path(results: str | Path, model: str) -> Path:
-    """``results/models/{model}``: an MLflow pyfunc model directory."""
-    return _path("model", results, model=model)
-
-
-def validation_path(results: str | Path, model: str) -> Path:
-    """``results/validation/{model}.json``: held-out metrics of one model."""
-    return _path("validation", results, model=model)
-
-
-def dynamics_model_path(results: str | Path, model: str) -> Path:
-    """``results/dynamics/{model}``: an evolution model's MLflow pyfunc directory."""
-    return _path("dynamics_model", results, model=model)
-
-
-def dynamics_validation_path(results: str | Path, model: str) -> Path:
-    """``results/dynamics/{model}.json``: held-out one-step and rollout metrics of one evolution model."""
-    return _path("dynamics_validation", results, model=model)
-
-
-def dynamics_plots_path(results: str | Path, model: str) -> Path:
-    """``results/dynamics/plots/{model}``: the figures of that validation."""
-    return _path("dynamics_plots", results, model=model)
+reduced_comparison_path = _per_model("reduced_comparison", "the reduced runs measured against NDEM")
+model_path = _per_model("model", "an MLflow pyfunc model directory")
+validation_path = _per_model("validation", "held-out metrics of one model")
+dynamics_model_path = _per_model("dynamics_model", "an evolution model's MLflow pyfunc directory")
+dynamics_validation_path = _per_model("dynamics_validation", "an evolution model's held-out errors")
+dynamics_plots_path = _per_model("dynamics_plots", "the figures of that validation")

@@ -4,21 +4,18 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.cliargs import add_config, add_labels, add_run_inputs, add_threads, configure, labels
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="run NDEM along a blade trajectory and record the fields")
-    p.add_argument("--bed", required=True, help="settled bed (.npz from `dozerlab bed`)")
-    p.add_argument(
-        "--trajectory", required=True, help="blade trajectory (.csv from `dozerlab trajectory`)"
-    )
-    p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
-    )
+    add_run_inputs(p)
+    add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
     p.add_argument(
         "--state", default=None, help="write the final particle state here (.npz, a bed file)"
     )
-    p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
+    add_threads(p)
     p.add_argument(
         "--vtk-dir",
         default=None,
@@ -27,16 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plots", default=None, help="write field-slice, force and GIF plots of the run here"
     )
-    p.add_argument("--scenario", default=None, help="label (default: the bed's scenario)")
-    p.add_argument(
-        "--speed", type=float, default=None, help="label in m/s (default: from the trajectory)"
-    )
-    p.add_argument(
-        "--depth",
-        type=float,
-        default=None,
-        help="label in m (default: none; the workflow passes its sweep point's)",
-    )
+    add_labels(p)
     p.set_defaults(func=_simulate)
 
     p = sub.add_parser(
@@ -77,24 +65,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from dozerlab.config import load_config
-    from dozerlab.runtime import set_threads
-
-    set_threads(args.threads)
+    config = configure(args)
     from dozerlab.fields.jobs import simulate
 
-    simulate(
-        args.bed,
-        args.trajectory,
-        load_config(args.config),
-        args.out,
-        scenario=args.scenario,
-        speed=args.speed,
-        depth=args.depth,
-        vtk_dir=args.vtk_dir,
-        plots_dir=args.plots,
-        state_out=args.state,
-    )
+    outputs = {"vtk_dir": args.vtk_dir, "plots_dir": args.plots, "state_out": args.state}
+    simulate(args.bed, args.trajectory, config, args.out, **outputs, **labels(args))
     return 0
 
 

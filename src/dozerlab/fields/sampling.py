@@ -138,19 +138,14 @@ class SamplingGrid:
         return x, y, z
 
     def _sums(
-        self,
-        positions: np.ndarray,
-        velocities: np.ndarray,
-        radii: np.ndarray,
-        masses: np.ndarray,
-        tip: np.ndarray,
+        self, particles: tuple[np.ndarray, ...], tip: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, 3) and Σw·m (Nx, Ny, Nz) of the particles' algorithm-1
-        weights w per bin (:func:`_accumulate`)."""
-        positions = np.ascontiguousarray(positions, dtype=np.float64)
-        velocities = np.ascontiguousarray(velocities, dtype=np.float64)
-        radii = np.ascontiguousarray(radii, dtype=np.float64)
-        masses = np.ascontiguousarray(masses, dtype=np.float64)
+        weights w per bin (:func:`_accumulate`); ``particles`` are the arguments of :meth:`sample`
+        before ``tip``: positions, velocities, radii, masses."""
+        positions, velocities, radii, masses = (
+            np.ascontiguousarray(a, dtype=np.float64) for a in particles
+        )
         n = positions.shape[0]
         if (
             positions.shape != (n, 3)
@@ -194,7 +189,7 @@ class SamplingGrid:
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         n = positions.shape[0]
         wsum, _, _ = self._sums(
-            positions, np.zeros((n, 3)), np.asarray(radii).reshape(n), np.ones(n), tip
+            (positions, np.zeros((n, 3)), np.asarray(radii).reshape(n), np.ones(n)), tip
         )
         return wsum
 
@@ -217,7 +212,7 @@ class SamplingGrid:
             velocity (Nx, Ny, Nz, 3) float32, m/s (Σwv/Σw, 0 in empty bins) and
             density (Nx, Ny, Nz) float32, kg/m³ (Σwm / V_bin).
         """
-        wsum, wvel, wmass = self._sums(positions, velocities, radii, masses, tip)
+        wsum, wvel, wmass = self._sums((positions, velocities, radii, masses), tip)
         velocity = np.empty(wvel.shape, dtype=np.float32)
         density = np.empty(wsum.shape, dtype=np.float32)
         _finish(wsum, wvel, wmass, 1.0 / self.bin_volume, velocity, density)

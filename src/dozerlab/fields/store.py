@@ -327,36 +327,39 @@ class FieldStoreWriter:
 def write_store(
     path: str | Path,
     *,
-    x: np.ndarray,
-    y: np.ndarray,
-    z: np.ndarray,
-    time: np.ndarray,
-    velocity: np.ndarray,
-    density: np.ndarray,
-    force: np.ndarray,
-    torque: np.ndarray,
-    blade_velocity: np.ndarray,
-    blade_position: np.ndarray,
     attrs: Mapping[str, Any],
     chunk_steps: int = DEFAULT_CHUNK_STEPS,
-    **writer_options: Any,
+    codec: Any = None,
+    inner_steps: int | None = None,
+    **arrays: np.ndarray,
 ) -> Path:
-    """Write whole arrays (leading axis time, length T) as a field store; returns ``path``.
+    """Write whole arrays as a field store; returns ``path``.
 
-    Shapes as in :meth:`FieldStoreWriter.append` with a leading (T,) axis.
+    ``arrays`` are the coordinates ``x``, ``y``, ``z`` and ``time`` (T,) and the variables of
+    :data:`SCHEMA`, each by its name, shapes as in :meth:`FieldStoreWriter.append` with a
+    leading (T,) axis; ``attrs`` and the writer's options as in :class:`FieldStoreWriter`.
     """
-    time = np.asarray(time)
+    names = ("x", "y", "z", "time", *SCHEMA)
+    if set(arrays) != set(names):
+        raise ValueError(
+            f"write_store needs the arrays {list(names)}; missing "
+            f"{[k for k in names if k not in arrays]}, unknown {sorted(set(arrays) - set(names))}"
+        )
+    time = np.asarray(arrays["time"])
     if time.ndim != 1:
         raise ValueError(f"time must be 1-D, got shape {time.shape}")
-    series = (velocity, density, force, torque, blade_velocity, blade_position)
-    for name, v in zip(SCHEMA, series, strict=True):
-        if len(v) != time.size:
-            raise ValueError(f"{name} has {len(v)} steps but time has {time.size}")
-    with FieldStoreWriter(
-        path, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps, **writer_options
-    ) as w:
+    for name in SCHEMA:
+        if len(arrays[name]) != time.size:
+            raise ValueError(f"{name} has {len(arrays[name])} steps but time has {time.size}")
+    coords: dict[str, Any] = {k: arrays[k] for k in ("x", "y", "z")}
+    options: dict[str, Any] = {
+        "chunk_steps": chunk_steps,
+        "codec": codec,
+        "inner_steps": inner_steps,
+    }
+    with FieldStoreWriter(path, attrs=attrs, **coords, **options) as w:
         for i in range(time.size):
-            w.append(float(time[i]), *(v[i] for v in series))
+            w.append(float(time[i]), *(arrays[name][i] for name in SCHEMA))
     return Path(path)
 
 

@@ -1,9 +1,12 @@
-"""``dozerlab train``, ``validate`` and ``evaluate``: the learning commands."""
+"""``dozerlab train``, ``validate`` and ``evaluate``: the learning commands, and the parsers and
+handlers of training and validation that the field-evolution commands share."""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
+from dozerlab.cliargs import add_config, add_threads, configure, job
 from dozerlab.learn.names import MODEL_NAMES
 
 
@@ -16,76 +19,103 @@ def add_held_out(p: argparse.ArgumentParser) -> None:
         p.add_argument(f"--{name}", nargs="*", default=[], metavar="F.zarr", help=what)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("train", help="train one force/torque model on field stores")
-    p.add_argument("--model", required=True, choices=MODEL_NAMES, help="model name")
+def add_training(
+    sub: argparse._SubParsersAction,
+    name: str,
+    help: str,
+    *,
+    run: str,
+    models: Sequence[str] = MODEL_NAMES,
+    results: str = "models",
+    threads_key: str = "train",
+    report: tuple[str, str, str] = ("", "best validation loss", "samples"),
+) -> None:
+    """A training command: ``--model`` (one of ``models``) trained on ``--train`` stores into
+    ``--out`` (``results/{results}/NAME``) by the job ``run`` (``module:function``); ``report``
+    (prefix, loss, samples) words the line it prints. The defaults are those of the force
+    models' ``train``."""
+    p = sub.add_parser(name, help=help)
+    p.add_argument("--model", required=True, choices=models, help="model name")
     p.add_argument(
         "--train", required=True, nargs="+", metavar="F.zarr", help="training field stores"
     )
+    add_config(p)
     p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
+        "--out", required=True, help=f"model directory to write (results/{results}/NAME)"
     )
-    p.add_argument("--out", required=True, help="model directory to write (results/models/NAME)")
-    p.add_argument(
-        "--threads", type=int, default=None, help="thread budget (default: config threads.train)"
-    )
+    add_threads(p, None, f"thread budget (default: config threads.{threads_key})")
     p.add_argument(
         "--device", default=None, help="torch device (default: cuda if present, else cpu)"
     )
-    p.set_defaults(func=_train)
+    p.set_defaults(func=_train, threads_key=threads_key, run=run, report=report)
 
-    p = sub.add_parser("validate", help="metrics and plots of a model on held-out sweep points")
-    p.add_argument("--model", required=True, help="model directory (results/models/NAME)")
+
+def add_validation(
+    sub: argparse._SubParsersAction,
+    name: str,
+    help: str,
+    *,
+    run: str,
+    models: str = "models",
+    results: str = "validation",
+    plots: str = "the JSON path without .json",
+    sections: str = "mlflow section",
+) -> None:
+    """A validation command: the ``--model`` directory (``results/{models}/NAME``) on held-out
+    stores, metrics to ``--out`` (``results/{results}/NAME.json``) and plots to ``--plots``
+    (default: ``plots``) by the job ``run`` (``module:function``); the config's ``sections`` are
+    read. The defaults are those of the force models' ``validate``."""
+    p = sub.add_parser(name, help=help)
+    p.add_argument("--model", required=True, help=f"model directory (results/{models}/NAME)")
     add_held_out(p)
-    p.add_argument(
-        "--out",
-        required=True,
-        help="JSON to write (results/validation/NAME.json)",
+    p.add_argument("--out", required=True, help=f"JSON to write (results/{results}/NAME.json)")
+    p.add_argument("--plots", default=None, help=f"plot folder (default: {plots})")
+    add_config(p, f"YAML file or inline JSON ({sections})")
+    add_threads(p, help="thread budget")
+    p.set_defaults(func=_validate, run=run)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    add_training(
+        sub,
+        "train",
+        "train one force/torque model on field stores",
+        run="dozerlab.learn.jobs:train_job",
     )
-    p.add_argument(
-        "--plots", default=None, help="plot folder (default: the JSON path without .json)"
+    add_validation(
+        sub,
+        "validate",
+        "metrics and plots of a model on held-out sweep points",
+        run="dozerlab.learn.jobs:validate_job",
     )
-    p.add_argument("--config", default=None, help="YAML file or inline JSON (mlflow section)")
-    p.add_argument("--threads", type=int, default=1, help="thread budget")
-    p.set_defaults(func=_validate)
 
     p = sub.add_parser("evaluate", help="print a model's metrics on field stores")
     p.add_argument("--model", required=True, help="model directory")
     p.add_argument("stores", nargs="+", metavar="STORE", help="field stores")
-    p.add_argument("--threads", type=int, default=1, help="thread budget")
+    add_threads(p, help="thread budget")
     p.set_defaults(func=_evaluate)
 
 
 def _train(args: argparse.Namespace) -> int:
-    from dozerlab.config import load_config
-    from dozerlab.runtime import set_threads
-
-    config = load_config(args.config)
-    set_threads(args.threads or config["threads"]["train"])
-    from dozerlab.learn.jobs import train_job
-
-    result = train_job(args.model, args.train, config, args.out, device=args.device)
+    config = configure(args, args.threads_key)
+    result = job(args.run)(args.model, args.train, config, args.out, device=args.device)
+    prefix, loss, samples = args.report
     print(
-        f"{args.model}: best validation loss {min(result.val_loss):.4g} at epoch {result.best_epoch} "
-        f"({result.samples['train']} training samples, {result.seconds:.1f} s) -> {args.out}"
+        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch} "
+        f"({result.samples['train']} training {samples}, {result.seconds:.1f} s) -> {args.out}"
     )
     return 0
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from dozerlab.config import load_config
-    from dozerlab.runtime import set_threads
-
-    set_threads(args.threads)
-    from dozerlab.learn.jobs import validate_job
-
-    result = validate_job(
+    config = configure(args)
+    result = job(args.run)(
         args.model,
         args.interpolation,
         args.extrapolation,
         args.out,
-        args.plots,
-        load_config(args.config),
+        plots_dir=args.plots,
+        config=config,
     )
     print(result["summary"])
     return 0

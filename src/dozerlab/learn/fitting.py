@@ -1,14 +1,17 @@
-"""Pieces every trainer shares: the device, the divergence guard and the closed-form ridge
-solvers (one on a design matrix held whole, one on normal equations accumulated in chunks)."""
+"""Pieces every trainer shares: the device, the samples as tensors, the divergence guard and the
+closed-form ridge solvers (one on a design matrix held whole, one on normal equations
+accumulated in chunks)."""
 
 from __future__ import annotations
 
 import copy
 import math
 from collections.abc import Callable
+from typing import Any, TypedDict
 
 import torch
 
+from dozerlab.learn.data import Samples
 from dozerlab.runtime import DozerlabError
 
 
@@ -19,6 +22,45 @@ class TrainingDiverged(DozerlabError):
 def device_for(name: str | None = None) -> torch.device:
     """``name`` if given, else CUDA when present, else CPU."""
     return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+
+
+#: ``on_epoch(epoch, train_loss, val_loss)``, called after each epoch.
+EpochCallback = Callable[[int, float, float], None]
+
+
+class FitOptions(TypedDict, total=False):
+    """How a training runs, the keywords every trainer takes: ``device`` (a torch device name;
+    default CUDA when present, else CPU), ``on_epoch`` (an :data:`EpochCallback`; default none)
+    and ``progress`` (a tqdm bar on stderr; default True)."""
+
+    device: str | None
+    on_epoch: EpochCallback | None
+    progress: bool
+
+
+def fit_start(
+    config: dict[str, Any], options: FitOptions
+) -> tuple[int, torch.device, EpochCallback | None, bool]:
+    """A trainer's start: torch seeded with the config's ``seed``; returns the seed, the
+    device, the epoch callback and the progress flag of ``options`` (defaults filled in)."""
+    seed = int(config.get("seed", 0))
+    torch.manual_seed(seed)
+    device = device_for(options.get("device"))
+    return seed, device, options.get("on_epoch"), options.get("progress", True)
+
+
+class SampleTensors:
+    """The per-row store arrays of ``samples`` (velocity, density, blade_velocity) as tensors on
+    ``device``; a trainer's batches gather rows of them by index."""
+
+    def __init__(self, samples: Samples, device: torch.device) -> None:
+        self.samples, self.device = samples, device
+        self.velocity = torch.from_numpy(samples.velocity).to(device)
+        self.density = torch.from_numpy(samples.density).to(device)
+        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+
+    def __len__(self) -> int:
+        return len(self.samples)
 
 
 def guard(value: float, what: str, hint: str = "lower the learning rate") -> None:
@@ -103,7 +145,8 @@ class NormalEquations:
 class EarlyStopping:
     """The epochs' losses, the model's best state by validation loss, and when to stop:
     ``end_epoch`` records an epoch (and passes it to ``on_epoch``) and says whether ``patience``
-    epochs in a row brought no better validation loss; ``restore`` loads the best state."""
+    epochs in a row brought no better validation loss; ``restore`` loads the best state and
+    returns the history."""
 
     def __init__(
         self,
@@ -129,5 +172,8 @@ class EarlyStopping:
         self.waited += 1
         return self.waited >= self.patience
 
-    def restore(self) -> None:
+    def restore(self) -> tuple[list[float], list[float], int]:
+        """Load the best state; returns the training and validation losses per epoch and the
+        best epoch (a training result's history)."""
         self.model.load_state_dict(self.state)
+        return self.train_loss, self.val_loss, self.best_epoch

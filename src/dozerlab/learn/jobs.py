@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +69,44 @@ def store_arrays(store: StoreData) -> dict[str, np.ndarray]:
     }
 
 
+@dataclass(frozen=True)
+class Family:
+    """What the training job of one family of models (the force models, the evolution models)
+    is made of; :func:`train_job` does the rest, the same for every family.
+
+    ``title`` prefixes run names and plot titles (``""``, ``"dynamics "``); ``rule`` is the
+    workflow rule (the run's ``rule`` tag); ``val_metric`` names the validation loss among the
+    per-epoch metrics; ``fit(kind, stores, config, **FitOptions)`` trains; ``pyfunc`` writes the
+    model directory; ``recorded(config)`` gives the config parts recorded in the model's
+    metadata and in the run's params; ``fit_metrics(model, stores)`` adds metrics on the
+    training stores to the run.
+    """
+
+    title: str
+    rule: str
+    val_metric: str
+    fit: Callable[..., TrainResult]
+    pyfunc: pyfunc.PyfuncFormat
+    recorded: Callable[[dict[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
+    fit_metrics: Callable[[Any, list[StoreData]], dict[str, float]] = lambda model, stores: {}
+
+
+def _force_recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    return {"learn": config["learn"]}, {"learn": config["learn"]}
+
+
+#: The force models: ``dozerlab train``.
+FORCE = Family(
+    "",
+    "train",
+    "val_loss",
+    train_model,
+    pyfunc.FORMAT,
+    _force_recorded,
+    lambda model, stores: flat(evaluate(model, stores)["overall"], "train"),
+)
+
+
 def train_job(
     kind: str,
     train: list[str | Path],
@@ -74,49 +114,79 @@ def train_job(
     out: str | Path,
     device: str | None = None,
     progress: bool = True,
+    family: Family = FORCE,
 ) -> TrainResult:
-    """Train ``kind`` on the stores ``train``; save the MLflow model directory at ``out`` and
-    log the run (params, per-epoch losses, final training metrics, loss plot, model)."""
+    """Train model ``kind`` of ``family`` on the stores ``train``; save the MLflow model
+    directory at ``out`` and log the run (params, per-epoch losses, final training metrics,
+    loss plot, model)."""
     import mlflow
 
     check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
     check_grid(stores)  # counts and sizes of the bins agree
-    meta = {**training_meta(stores, train), "learn": config["learn"], "seed": config.get("seed")}
-    params = {
-        "model": kind,
-        "seed": config.get("seed"),
-        "learn": config["learn"],
-        "train_stores": ",".join(str(p) for p in train),
-    }
+    seed = config.get("seed")
+    meta_parts, param_parts = family.recorded(config)
+    meta = {**training_meta(stores, train), **meta_parts, "seed": seed}
+    params = {"model": kind, "seed": seed, **param_parts}
+    params["train_stores"] = ",".join(str(p) for p in train)
+    name = f"{family.title}{kind}"
     with tracking.job_run(
-        config, f"train {kind}", rule="train", tags={"model": kind}, params=params
+        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params
     ) as run:
-        log_epoch = epoch_logger(run, "val_loss")
-        result = train_model(
+        log_epoch = epoch_logger(run, family.val_metric)
+        result = family.fit(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
         )
         meta.update(result_meta(result))
         model = result.model.cpu()
         example = store_arrays(stores[0])
         with atomic_output(out, pyfunc.MODEL_DIR) as tmp:
-            pyfunc.save(model, meta, tmp, example)
+            family.pyfunc.save(model, meta, tmp, example)
         if run is not None:
-            fit = evaluate(model, stores)["overall"]
             mlflow.log_metrics(
                 {
-                    **flat(fit, "train"),
-                    "best_val_loss": min(result.val_loss),
+                    **family.fit_metrics(model, stores),
+                    f"best_{family.val_metric}": min(result.val_loss),
                     "best_epoch": result.best_epoch,
                     "train_seconds": result.seconds,
                 }
             )
             with tempfile.TemporaryDirectory() as d:
-                mlflow.log_artifact(
-                    str(loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", kind))
-                )
-            result.model_uri = pyfunc.log(model, meta, example).model_uri
+                png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
+                mlflow.log_artifact(str(png))
+            result.model_uri = family.pyfunc.log(model, meta, example).model_uri
     return result
+
+
+def held_out_params(
+    model_dir: str | Path, interpolation: list[str | Path], extrapolation: list[str | Path]
+) -> dict[str, Any]:
+    """A validation run's params: the model directory and the held-out stores."""
+    return {
+        "model_dir": str(model_dir),
+        "interpolation": ",".join(map(str, interpolation)),
+        "extrapolation": ",".join(map(str, extrapolation)),
+    }
+
+
+def record_validation(
+    run: Any,
+    result: dict[str, Any],
+    out: Path,
+    kind: OutputKind,
+    metrics: dict[str, float],
+    plots_dir: Path,
+) -> None:
+    """Write a validation's ``result`` as JSON at ``out`` and, in an MLflow ``run``, log its
+    ``metrics``, the JSON and the plots of ``plots_dir``."""
+    with atomic_output(out, kind) as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
+    if run is not None:
+        import mlflow
+
+        mlflow.log_metrics(metrics)
+        mlflow.log_artifact(str(out))
+        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")
 
 
 def validate_job(
@@ -129,31 +199,20 @@ def validate_job(
 ) -> dict[str, Any]:
     """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
     named after ``out``) and an MLflow validate run."""
-    import mlflow
-
     out = Path(out)
     check_output(out, VALIDATION_JSON)
     model, meta = pyfunc.load(model_dir)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
     groups = load_groups(interpolation, extrapolation)
-    params = {
-        "model_dir": str(model_dir),
-        "interpolation": ",".join(map(str, interpolation)),
-        "extrapolation": ",".join(map(str, extrapolation)),
-    }
+    params = held_out_params(model_dir, interpolation, extrapolation)
     with tracking.job_run(
         config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
-        with atomic_output(out, VALIDATION_JSON) as tmp:
-            tmp.write_text(json.dumps(result, indent=1))
-        if run is not None:
-            metrics = flat(result["overall"], "overall")
-            for g, data in result["groups"].items():
-                metrics.update(flat(data["overall"], g))
-            mlflow.log_metrics(metrics)
-            mlflow.log_artifact(str(out))
-            mlflow.log_artifacts(str(pdir), artifact_path="plots")
+        metrics = flat(result["overall"], "overall")
+        for g, data in result["groups"].items():
+            metrics.update(flat(data["overall"], g))
+        record_validation(run, result, out, VALIDATION_JSON, metrics, pdir)
     return result
 
 

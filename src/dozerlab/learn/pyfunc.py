@@ -21,6 +21,7 @@ import json
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -68,8 +69,9 @@ def with_history(arrays: dict[str, np.ndarray], history: int) -> tuple[torch.Ten
     )
 
 
-def check_inputs(arrays: Any, grid: tuple[int, int, int]) -> dict[str, np.ndarray]:
-    """The three input arrays, shape-checked against the model's grid."""
+def require_inputs(arrays: Any) -> None:
+    """Refuse model input that is not a dict holding every one of :data:`INPUT_NAMES` (both
+    model families take these), naming what is wrong."""
     if not isinstance(arrays, dict):
         raise DozerlabError(
             f"model input must be a dict with keys {list(INPUT_NAMES)}, got {type(arrays).__name__}"
@@ -77,6 +79,11 @@ def check_inputs(arrays: Any, grid: tuple[int, int, int]) -> dict[str, np.ndarra
     missing = [k for k in INPUT_NAMES if k not in arrays]
     if missing:
         raise DozerlabError(f"model input lacks {missing}; it needs {list(INPUT_NAMES)}")
+
+
+def check_inputs(arrays: Any, grid: tuple[int, int, int]) -> dict[str, np.ndarray]:
+    """The three input arrays, shape-checked against the model's grid."""
+    require_inputs(arrays)
     out = {k: np.asarray(arrays[k], dtype=np.float32) for k in INPUT_NAMES}
     b = out["density"].shape[0] if out["density"].ndim else 0
     expected = {"velocity": (b, *grid, 3), "density": (b, *grid), "blade_velocity": (b, 3)}
@@ -120,12 +127,20 @@ def untyped_predict() -> Iterator[None]:
 
 with untyped_predict():
 
-    class ForcePyfunc(PythonModel):
-        """MLflow pyfunc wrapper around a :class:`ForceModel`."""
+    class BuiltModel(PythonModel):
+        """A pyfunc model that rebuilds ``self.model`` from its directory's artifacts with the
+        subclass's ``build(meta, weights)`` (a staticmethod); the subclass defines ``predict``."""
+
+        build: Callable[[dict[str, Any], str | Path], Any]
 
         def load_context(self, context: Any) -> None:
             meta = json.loads(Path(context.artifacts["meta"]).read_text())
-            self.model = build(meta, context.artifacts["weights"])
+            self.model = self.build(meta, context.artifacts["weights"])
+
+    class ForcePyfunc(BuiltModel):
+        """MLflow pyfunc wrapper around a :class:`ForceModel`."""
+
+        build = staticmethod(build)
 
         def predict(self, context, model_input, params=None):
             """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step input arrays."""
@@ -157,19 +172,14 @@ def pip_requirements() -> list[str]:
     return [f"{p}=={version(p)}" for p in ("mlflow", "torch", "numpy", "pandas", "dozerlab")]
 
 
-def model_kwargs(
-    model: ForceModel, meta: dict[str, Any], workdir: Path, example: dict[str, np.ndarray]
-) -> dict[str, Any]:
-    """Arguments shared by ``mlflow.pyfunc.save_model`` and ``log_model`` (files go to ``workdir``)."""
+def model_extras(model: ForceModel, example: dict[str, np.ndarray]) -> dict[str, Any]:
+    """A force model's own arguments of ``mlflow.pyfunc.save_model`` and ``log_model``: its
+    signature and input example (the first row of per-row store arrays)."""
     return {
-        # Models from code: loading runs this package's entry file instead of unpickling an object.
-        "python_model": str(Path(__file__).with_name("pyfunc_entry.py")),
-        "artifacts": write_artifacts(model, meta, workdir),
         "signature": signature(model.grid),
         "input_example": {
             k: np.ascontiguousarray(example[k][:1], dtype=np.float32) for k in INPUT_NAMES
         },
-        "pip_requirements": pip_requirements(),
     }
 
 
@@ -192,31 +202,60 @@ def read_artifacts(path: str | Path, what: str = "dozerlab model") -> tuple[dict
     return json.loads((art / "meta.json").read_text()), art / "weights.pt"
 
 
-def save_model(path: str | Path, kwargs: Callable[[Path], dict[str, Any]]) -> None:
-    """``mlflow.pyfunc.save_model`` at ``path`` with ``kwargs(workdir)`` (files made there)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        mlflow.pyfunc.save_model(path=str(path), **kwargs(Path(tmp)))
+@dataclass(frozen=True)
+class PyfuncFormat:
+    """How one family of models is written as an MLflow pyfunc directory and read back.
+
+    ``what`` names the directory in messages; ``entry`` is the family's models-from-code file
+    (loading runs it instead of unpickling an object); ``build(meta, weights)`` rebuilds a model;
+    ``extras(model, arrays)`` gives the family's own ``save_model``/``log_model`` arguments
+    (signature, input example from per-row store arrays, metadata); ``check(meta, path)`` refuses
+    a directory of another family before it is built.
+    """
+
+    what: str
+    entry: Path
+    build: Callable[[dict[str, Any], str | Path], Any]
+    extras: Callable[[Any, dict[str, np.ndarray]], dict[str, Any]]
+    check: Callable[[dict[str, Any], str | Path], None] = lambda meta, path: None
+
+    def kwargs(
+        self, model: Any, meta: dict[str, Any], workdir: Path, arrays: dict[str, np.ndarray]
+    ) -> dict[str, Any]:
+        """Arguments shared by ``mlflow.pyfunc.save_model`` and ``log_model`` (files go to
+        ``workdir``)."""
+        return {
+            "python_model": str(self.entry),
+            "artifacts": write_artifacts(model, meta, workdir),
+            "pip_requirements": pip_requirements(),
+            **self.extras(model, arrays),
+        }
+
+    def save(
+        self, model: Any, meta: dict[str, Any], path: str | Path, arrays: dict[str, np.ndarray]
+    ) -> None:
+        """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist);
+        ``arrays`` are per-row store arrays for the input example."""
+        with tempfile.TemporaryDirectory() as tmp:
+            mlflow.pyfunc.save_model(path=str(path), **self.kwargs(model, meta, Path(tmp), arrays))
+
+    def log(self, model: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
+        """Log ``model`` to the active MLflow run as the model named ``model``."""
+        with tempfile.TemporaryDirectory() as tmp:
+            return mlflow.pyfunc.log_model(
+                name="model", **self.kwargs(model, meta, Path(tmp), arrays)
+            )
+
+    def load(self, path: str | Path) -> tuple[Any, dict[str, Any]]:
+        """Load a saved model directory directly (no MLflow runtime): the model and its
+        metadata."""
+        meta, weights = read_artifacts(path, self.what)
+        self.check(meta, path)
+        return self.build(meta, weights), meta
 
 
-def log_model(kwargs: Callable[[Path], dict[str, Any]]) -> Any:
-    """``mlflow.pyfunc.log_model`` to the active run as the model named ``model``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        return mlflow.pyfunc.log_model(name="model", **kwargs(Path(tmp)))
-
-
-def save(
-    model: ForceModel, meta: dict[str, Any], path: str | Path, example: dict[str, np.ndarray]
-) -> None:
-    """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist)."""
-    save_model(path, lambda tmp: model_kwargs(model, meta, tmp, example))
-
-
-def log(model: ForceModel, meta: dict[str, Any], example: dict[str, np.ndarray]) -> Any:
-    """Log ``model`` to the active MLflow run as the model named ``model``."""
-    return log_model(lambda tmp: model_kwargs(model, meta, tmp, example))
-
-
-def load(path: str | Path) -> tuple[ForceModel, dict[str, Any]]:
-    """Load a saved model directory directly (no MLflow runtime): the model and its metadata."""
-    meta, weights = read_artifacts(path)
-    return build(meta, weights), meta
+#: The force models' pyfunc directories.
+FORMAT = PyfuncFormat(
+    "dozerlab model", Path(__file__).with_name("pyfunc_entry.py"), build, model_extras
+)
+save, log, load = FORMAT.save, FORMAT.log, FORMAT.load

@@ -4,9 +4,9 @@ stopping on the validation block, or the closed-form ridge solution for ``linear
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -15,16 +15,18 @@ from tqdm import tqdm
 from dozerlab.learn.data import Samples, StoreData, concat, split_train_validation
 from dozerlab.learn.fitting import (
     EarlyStopping,
+    EpochCallback,
+    FitOptions,
+    SampleTensors,
     TrainingDiverged,
     device_for,
+    fit_start,
     guard,
     solve_ridge,
 )
 from dozerlab.learn.models import TARGET_PARITY, ForceModel, LinearHead, channel_parity
 
 __all__ = ["TrainResult", "TrainingDiverged", "device_for", "train_model"]
-
-EpochCallback = Callable[[int, float, float], None]
 
 
 @dataclass
@@ -41,18 +43,13 @@ class TrainResult:
     model_uri: str = ""
 
 
-class Batches:
-    """The samples as tensors on ``device``; ``get(sel)`` gathers one batch by index."""
+class Batches(SampleTensors):
+    """The samples and their targets as tensors on ``device``; ``get(sel)`` gathers one batch
+    by index."""
 
     def __init__(self, samples: Samples, device: torch.device) -> None:
-        self.samples, self.device = samples, device
-        self.velocity = torch.from_numpy(samples.velocity).to(device)
-        self.density = torch.from_numpy(samples.density).to(device)
-        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
+        super().__init__(samples, device)
         self.target = torch.from_numpy(samples.target).to(device)
-
-    def __len__(self) -> int:
-        return len(self.samples)
 
     def get(self, sel: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(velocity, density, blade_velocity) with a history axis, and the (B, 6) targets."""
@@ -175,24 +172,18 @@ def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256)
 
 
 def train_model(
-    kind: str,
-    stores: list[StoreData],
-    config: dict[str, Any],
-    *,
-    device: str | None = None,
-    on_epoch: EpochCallback | None = None,
-    progress: bool = True,
+    kind: str, stores: list[StoreData], config: dict[str, Any], **options: Unpack[FitOptions]
 ) -> TrainResult:
     """Train model ``kind`` on ``stores`` (the training points) with ``config['learn']``.
 
     ``learn.validation_fraction`` of each store (blocks of ``learn.validation_block`` steps spread
     over the run, or its end when that is 0) is held out for early stopping; normalisation uses
-    the rest. ``on_epoch(epoch, train_loss, val_loss)`` is called after
-    each epoch (losses: normalised MSE). Raises :class:`TrainingDiverged` on NaN/inf.
+    the rest. ``options`` as :class:`~dozerlab.learn.fitting.FitOptions`; ``on_epoch(epoch,
+    train_loss, val_loss)`` is called after each epoch (losses: normalised MSE). Raises
+    :class:`TrainingDiverged` on NaN/inf.
     """
-    learn, seed = config["learn"], int(config.get("seed", 0))
-    torch.manual_seed(seed)
-    dev = device_for(device)
+    learn = config["learn"]
+    seed, dev, on_epoch, progress = fit_start(config, options)
     samples = concat(stores, learn["history"])
     train_s, val_s = split_train_validation(
         samples, learn["validation_fraction"], learn["validation_block"]
@@ -260,9 +251,4 @@ def _fit_gradient(
         bar.set_postfix(train=f"{total / count:.4f}", val=f"{val_loss:.4f}")
         if stop.end_epoch(epoch, total / count, val_loss):
             break
-    stop.restore()
-    result.train_loss, result.val_loss, result.best_epoch = (
-        stop.train_loss,
-        stop.val_loss,
-        stop.best_epoch,
-    )
+    result.train_loss, result.val_loss, result.best_epoch = stop.restore()

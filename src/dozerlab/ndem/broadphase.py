@@ -109,6 +109,24 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out
     return count
 
 
+@njit(cache=True)
+def hit_buffers(
+    counts: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The second pass of a count-then-fill contact search: from ``counts`` (N + 1,), 0 then
+    each sphere's hits, the write offsets (N + 1,) and empty arrays for the M hits: sphere
+    (M,), other (M,) int64, normal (M, 3) and overlap (M,) m."""
+    offsets = np.cumsum(counts)
+    m = offsets[-1]
+    return (
+        offsets,
+        np.empty(m, dtype=np.int64),
+        np.empty(m, dtype=np.int64),
+        np.empty((m, 3)),
+        np.empty(m),
+    )
+
+
 @njit(parallel=True, cache=True)
 def sphere_pairs(
     pos: np.ndarray,
@@ -133,12 +151,7 @@ def sphere_pairs(
         counts[i + 1] = _scan_neighbours(
             i, pos, radii, reach, cells, start, dims, dummy_j, dummy_n, dummy_g, -1
         )
-    offsets = np.cumsum(counts)
-    m = offsets[n]
-    pi = np.empty(m, dtype=np.int64)
-    pj = np.empty(m, dtype=np.int64)
-    nrm = np.empty((m, 3))
-    gap = np.empty(m)
+    offsets, pi, pj, nrm, gap = hit_buffers(counts)
     for i in prange(n):
         _scan_neighbours(i, pos, radii, reach, cells, start, dims, pj, nrm, gap, offsets[i])
         for k in range(offsets[i], offsets[i + 1]):

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from dozerlab.ndem.broadphase import hit_buffers
+
 PLANE = 0
 BOX = 1
 
@@ -67,7 +69,9 @@ def _body_test(x, r, margin, kind, c, rot, ext, nrm):
 
 
 @njit(parallel=True, cache=True)
-def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+def body_contacts(
+    pos, radii, margin, kind, bpos, brot, bext, bnormal
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
 
     Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m,
@@ -85,12 +89,7 @@ def body_contacts(pos, radii, margin, kind, bpos, brot, bext, bnormal):
             if g > -margin[i]:
                 c += 1
         counts[i + 1] = c
-    off = np.cumsum(counts)
-    m = off[n]
-    si = np.empty(m, dtype=np.int64)
-    sb = np.empty(m, dtype=np.int64)
-    nrm = np.empty((m, 3))
-    gap = np.empty(m)
+    off, si, sb, nrm, gap = hit_buffers(counts)
     for i in prange(n):
         k = off[i]
         for b in range(nb):

@@ -20,6 +20,30 @@ from dozerlab.ndem.contacts import KN, KR, KT, MU, MUR, N0, RI, RJ, SIG, VB, WB,
 
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
+def _disc_step(lam, k, col, t0, t1, t2, n0, n1, n2, lim):
+    """Project the trial multiplier t onto the tangent plane of n and the disc |t| <= ``lim``,
+    store it in ``lam[k, col:col + 3]`` and return its change (the friction and the rolling
+    rows share this step; inlined, so it costs no call)."""
+    tn = t0 * n0 + t1 * n1 + t2 * n2
+    t0 -= tn * n0
+    t1 -= tn * n1
+    t2 -= tn * n2
+    mag2 = t0 * t0 + t1 * t1 + t2 * t2
+    if mag2 > lim * lim:
+        sc = lim / np.sqrt(mag2)
+        t0 *= sc
+        t1 *= sc
+        t2 *= sc
+    d0 = t0 - lam[k, col]
+    d1 = t1 - lam[k, col + 1]
+    d2 = t2 - lam[k, col + 2]
+    lam[k, col] = t0
+    lam[k, col + 1] = t1
+    lam[k, col + 2] = t2
+    return d0, d1, d2
+
+
+@njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1);
     returns the squared normal-row residual (m²/s²)."""
@@ -84,23 +108,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     t0 = lam[k, 1] - kt * u0
     t1 = lam[k, 2] - kt * u1
     t2 = lam[k, 3] - kt * u2
-    tn = t0 * n0 + t1 * n1 + t2 * n2
-    t0 -= tn * n0
-    t1 -= tn * n1
-    t2 -= tn * n2
-    lim = c[MU] * ln_new
-    mag2 = t0 * t0 + t1 * t1 + t2 * t2
-    if mag2 > lim * lim:
-        sc = lim / np.sqrt(mag2)
-        t0 *= sc
-        t1 *= sc
-        t2 *= sc
-    d0 = t0 - lam[k, 1]
-    d1 = t1 - lam[k, 2]
-    d2 = t2 - lam[k, 3]
-    lam[k, 1] = t0
-    lam[k, 2] = t1
-    lam[k, 3] = t2
+    d0, d1, d2 = _disc_step(lam, k, 1, t0, t1, t2, n0, n1, n2, c[MU] * ln_new)
     vi0 += imi * d0
     vi1 += imi * d1
     vi2 += imi * d2
@@ -126,23 +134,7 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     r0 = lam[k, 4] - kr * (a0 - an * n0)
     r1 = lam[k, 5] - kr * (a1 - an * n1)
     r2 = lam[k, 6] - kr * (a2 - an * n2)
-    rn = r0 * n0 + r1 * n1 + r2 * n2
-    r0 -= rn * n0
-    r1 -= rn * n1
-    r2 -= rn * n2
-    lim = c[MUR] * ln_new
-    mag2 = r0 * r0 + r1 * r1 + r2 * r2
-    if mag2 > lim * lim:
-        sc = lim / np.sqrt(mag2)
-        r0 *= sc
-        r1 *= sc
-        r2 *= sc
-    e0 = r0 - lam[k, 4]
-    e1 = r1 - lam[k, 5]
-    e2 = r2 - lam[k, 6]
-    lam[k, 4] = r0
-    lam[k, 5] = r1
-    lam[k, 6] = r2
+    e0, e1, e2 = _disc_step(lam, k, 4, r0, r1, r2, n0, n1, n2, c[MUR] * ln_new)
     wi0 += iii * e0
     wi1 += iii * e1
     wi2 += iii * e2

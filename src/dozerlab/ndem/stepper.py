@@ -79,9 +79,9 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     n_slabs = int(slab_of_column.max()) + 1
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
     reach = _reach(state, p)
-    pi, pj, pn, pg = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
+    pairs = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
-    bi, bb, bn, bg = contacts.body_contacts(
+    hits = contacts.body_contacts(
         state.x,
         state.r,
         2.0 * (reach - state.r) + p.dt * body_speed,
@@ -97,14 +97,8 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     estar = p.youngs_modulus / (2.0 * (1.0 - nu * nu))
     upsilon = 1.0 / (1.0 + 4.0 * p.damping_steps)
     ci, cj, cd, gap, gstart = contacts.assemble(
-        pi,
-        pj,
-        pn,
-        pg,
-        bi,
-        bb,
-        bn,
-        bg,
+        *pairs,
+        *hits,
         slab,
         n_slabs,
         state.x,

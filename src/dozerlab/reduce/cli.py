@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.cliargs import add_config, add_labels, add_run_inputs, add_threads, configure, labels
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reduce", help="run a sweep point with the reduced loop (learned fields + projection)"
     )
-    p.add_argument("--bed", required=True, help="settled bed (.npz from `dozerlab bed`)")
-    p.add_argument("--trajectory", required=True, help="blade trajectory (.csv)")
+    add_run_inputs(p)
     p.add_argument(
         "--dynamics",
         required=True,
@@ -21,15 +22,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--force-model", required=True, help="force model directory (results/models/NAME)"
     )
-    p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
-    )
+    add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
     p.add_argument("--state", required=True, help="final particle state to write (.npz)")
-    p.add_argument("--threads", type=int, default=1, help="numba/torch threads (default 1)")
-    p.add_argument("--scenario", default=None, help="label (default: the bed's scenario)")
-    p.add_argument("--speed", type=float, default=None, help="label in m/s")
-    p.add_argument("--depth", type=float, default=None, help="label in m")
+    add_threads(p, help="numba/torch threads (default 1)")
+    add_labels(p)
     p.set_defaults(func=_reduce)
 
     p = sub.add_parser(
@@ -37,9 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="measure a dynamics model's reduced runs against NDEM (held-out points)",
     )
     p.add_argument("--dynamics-model", required=True, help="dynamics model name (or replay)")
-    p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
-    )
+    add_config(p)
     p.add_argument("--results", default="results", help="the workflow's results folder")
     p.add_argument("--out", required=True, help="JSON to write (results/reduced/NAME.json)")
     p.add_argument("--plots", required=True, help="folder for the plots and animations")
@@ -48,24 +43,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _reduce(args: argparse.Namespace) -> int:
-    from dozerlab.config import load_config
-    from dozerlab.runtime import set_threads
-
-    set_threads(args.threads)
+    config = configure(args)
     from dozerlab.reduce.jobs import reduce_job
 
     metrics = reduce_job(
         args.bed,
         args.trajectory,
-        load_config(args.config),
+        config,
         args.dynamics,
         args.force_model,
         args.out,
         args.state,
         ndem_store=args.ndem,
-        scenario=args.scenario,
-        speed=args.speed,
-        depth=args.depth,
+        **labels(args),
     )
     print(
         f"reduced run: {metrics['reduced_steps']:.0f} steps in {metrics['wall_time_s']:.2f} s, "

@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.cliargs import add_config, add_point, add_threads, configure
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bed", help="build and settle a scenario's particle bed")
     p.add_argument("--scenario", required=True, help="hill or step")
-    p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
-    )
+    add_config(p)
     p.add_argument("--out", required=True, help="bed file to write (.npz)")
     p.add_argument("--plot", default=None, help="also write a PNG of the bed and its settle log")
-    p.add_argument("--threads", type=int, default=1, help="numba threads (default 1)")
+    add_threads(p)
     p.add_argument(
         "--no-progress", dest="progress", action="store_false", help="hide the progress bar"
     )
@@ -21,18 +21,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("trajectory", help="plan a blade path over a bed (SPEC §4)")
     p.add_argument("--bed", required=True, help="bed file written by 'dozerlab bed'")
-    p.add_argument(
-        "--speed", type=float, required=True, help="blade speed along the path in m/s (> 0)"
-    )
-    p.add_argument(
-        "--depth",
-        type=float,
+    add_point(
+        p,
+        "blade speed along the path in m/s (> 0)",
+        "cut depth in m (> 0, less than the bed's height)",
         required=True,
-        help="cut depth in m (> 0, less than the bed's height)",
     )
-    p.add_argument(
-        "--config", default=None, help="YAML file or inline JSON (default: all defaults)"
-    )
+    add_config(p)
     p.add_argument("--out", required=True, help="CSV to write: step,time,x,y,z,vx,vy,vz")
     p.add_argument(
         "--plot", default=None, help="also write a PNG of the height field, path and velocities"
@@ -41,11 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _bed(args: argparse.Namespace) -> int:
-    from dozerlab.config import load_config
-    from dozerlab.runtime import set_threads
-
-    config = load_config(args.config)
-    set_threads(args.threads)
+    config = configure(args)
     from dozerlab.scenarios.jobs import bed_job
 
     bed_job(args.scenario, config, args.out, plot=args.plot, progress=args.progress)

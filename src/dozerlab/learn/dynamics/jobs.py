@@ -3,9 +3,7 @@ JSON and plots out, each an MLflow run (the force models' pattern, :mod:`dozerla
 
 from __future__ import annotations
 
-import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -13,14 +11,13 @@ from dozerlab.learn.data import StoreData, check_grid, load_store
 from dozerlab.learn.dynamics import plots, pyfunc
 from dozerlab.learn.dynamics.metrics import combine, evaluate_store, public
 from dozerlab.learn.dynamics.models import DynamicsModel
+from dozerlab.learn.dynamics.pyfunc import FORMAT
 from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.learn.dynamics.windows import frame_of
-from dozerlab.learn.jobs import epoch_logger, result_meta, store_arrays, training_meta
-from dozerlab.learn.plots import loss_curves
-from dozerlab.learn.pyfunc import MODEL_DIR
+from dozerlab.learn.jobs import Family, held_out_params, record_validation, train_job
 from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
-from dozerlab.runtime import OutputKind, atomic_output, json_with
+from dozerlab.runtime import OutputKind, json_with
 from dozerlab.tracking import job_run
 
 #: What ``validate-dynamics`` writes: held-out one-step and rollout metrics.
@@ -29,56 +26,26 @@ VALIDATION_JSON = OutputKind(
 )
 
 
-def train_dynamics_job(
-    kind: str,
-    train: list[str | Path],
-    config: dict[str, Any],
-    out: str | Path,
-    device: str | None = None,
-    progress: bool = True,
-) -> TrainResult:
-    """Train evolution model ``kind`` on the stores ``train``; save the MLflow model directory
-    at ``out`` and log the run (params, per-epoch losses, timing, loss plot, model)."""
-    import mlflow
-
-    stores = [load_store(p) for p in train]
+def _recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     dyn = config["dynamics"]
     split = {k: config["learn"][k] for k in ("validation_fraction", "validation_block")}
-    meta = {
-        **training_meta(stores, train),
-        "dynamics": dyn,
-        "split": split,
-        "seed": config.get("seed"),
-    }
-    params = {"model": kind, "seed": config.get("seed"), "dynamics": dyn, "learn": split}
-    params["train_stores"] = ",".join(str(p) for p in train)
-    tags = {"model": kind}
-    with job_run(
-        config, f"train dynamics {kind}", rule="train_dynamics", tags=tags, params=params
-    ) as run:
-        log_epoch = epoch_logger(run, "val_rollout_loss")
-        result = train_dynamics(
-            kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
-        )
-        meta.update(result_meta(result))
-        model = result.model.cpu()
-        with atomic_output(out, MODEL_DIR) as tmp:
-            pyfunc.save(model, meta, tmp, store_arrays(stores[0]))
-        if run is not None:
-            mlflow.log_metrics(
-                {
-                    "best_val_rollout_loss": min(result.val_loss),
-                    "best_epoch": result.best_epoch,
-                    "train_seconds": result.seconds,
-                }
-            )
-            with tempfile.TemporaryDirectory() as d:
-                png = loss_curves(
-                    result.train_loss, result.val_loss, Path(d) / "loss.png", f"dynamics {kind}"
-                )
-                mlflow.log_artifact(str(png))
-            result.model_uri = pyfunc.log(model, meta, store_arrays(stores[0])).model_uri
-    return result
+    return {"dynamics": dyn, "split": split}, {"dynamics": dyn, "learn": split}
+
+
+#: The field-evolution models: ``dozerlab train-dynamics``.
+DYNAMICS = Family(
+    "dynamics ", "train_dynamics", "val_rollout_loss", train_dynamics, FORMAT, _recorded
+)
+
+
+def train_dynamics_job(
+    kind: str, train: list[str | Path], config: dict[str, Any], out: str | Path, **options: Any
+) -> TrainResult:
+    """Train evolution model ``kind`` on the stores ``train``; save the MLflow model directory
+    at ``out`` and log the run (params, per-epoch losses, timing, loss plot, model): the force
+    models' :func:`~dozerlab.learn.jobs.train_job` with the :data:`DYNAMICS` family
+    (``options``: its ``device`` and ``progress``)."""
+    return train_job(kind, train, config, out, family=DYNAMICS, **options)
 
 
 def validate_dynamics(
@@ -180,7 +147,6 @@ def validate_dynamics_job(
     """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default:
     ``plots/{name}`` beside it, as :func:`dozerlab.sweep.dynamics_plots_path`; the folder named
     after the JSON is the model's), and an MLflow validate_dynamics run."""
-    import mlflow
 
     model, meta = pyfunc.load(model_dir)
     out = Path(out)
@@ -191,9 +157,7 @@ def validate_dynamics_job(
     }
     dyn = config["dynamics"]
     params = {
-        "model_dir": str(model_dir),
-        "interpolation": ",".join(map(str, interpolation)),
-        "extrapolation": ",".join(map(str, extrapolation)),
+        **held_out_params(model_dir, interpolation, extrapolation),
         "rollout_steps": dyn["rollout_steps"],
         "rollout_starts": dyn["rollout_starts"],
     }
@@ -208,12 +172,7 @@ def validate_dynamics_job(
         result = validate_dynamics(
             model, meta, held, dyn["rollout_steps"], dyn["rollout_starts"], pdir, out.parent
         )
-        with atomic_output(out, VALIDATION_JSON) as tmp:
-            tmp.write_text(json.dumps(result, indent=1))
-        if run is not None:
-            mlflow.log_metrics(flat_metrics(result))
-            mlflow.log_artifact(str(out))
-            mlflow.log_artifacts(str(pdir), artifact_path="plots")
+        record_validation(run, result, out, VALIDATION_JSON, flat_metrics(result), pdir)
     return result
 
 

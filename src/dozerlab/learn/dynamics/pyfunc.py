@@ -16,26 +16,22 @@ known rows and the m rows to predict. Normalisation is inside the model. The dir
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from mlflow.pyfunc.model import PythonModel
 
 from dozerlab.learn.dynamics.models import DynamicsModel
 from dozerlab.learn.pyfunc import (
-    log_model,
-    pip_requirements,
-    read_artifacts,
-    save_model,
+    INPUT_NAMES,
+    BuiltModel,
+    PyfuncFormat,
+    require_inputs,
     untyped_predict,
-    write_artifacts,
 )
 from dozerlab.runtime import DozerlabError
 
-INPUT_NAMES = ("velocity", "density", "blade_velocity")
 OUTPUT_NAMES = ("velocity", "density")
 
 
@@ -58,13 +54,7 @@ def build(meta: dict[str, Any], weights: str | Path) -> DynamicsModel:
 def predict_arrays(model: DynamicsModel, arrays: Any, batch: int = 64) -> dict[str, np.ndarray]:
     """The next m rows' ``velocity`` (B, m, X, Y, Z, 3) and ``density`` (B, m, X, Y, Z) as
     float32 arrays, from the input dict of the contract (shapes checked)."""
-    if not isinstance(arrays, dict):
-        raise DozerlabError(
-            f"model input must be a dict with keys {list(INPUT_NAMES)}, got {type(arrays).__name__}"
-        )
-    missing = [k for k in INPUT_NAMES if k not in arrays]
-    if missing:
-        raise DozerlabError(f"model input lacks {missing}; it needs {list(INPUT_NAMES)}")
+    require_inputs(arrays)
     v, rho, vb = (
         torch.from_numpy(np.ascontiguousarray(arrays[k], np.float32)) for k in INPUT_NAMES
     )
@@ -87,12 +77,10 @@ def predict_arrays(model: DynamicsModel, arrays: Any, batch: int = 64) -> dict[s
 
 with untyped_predict():
 
-    class DynamicsPyfunc(PythonModel):
+    class DynamicsPyfunc(BuiltModel):
         """MLflow pyfunc wrapper around a :class:`DynamicsModel`."""
 
-        def load_context(self, context: Any) -> None:
-            meta = json.loads(Path(context.artifacts["meta"]).read_text())
-            self.model = build(meta, context.artifacts["weights"])
+        build = staticmethod(build)
 
         def predict(self, context, model_input, params=None):
             """The contract's output dict of the contract's input dict."""
@@ -129,36 +117,25 @@ def example(model: DynamicsModel, arrays: dict[str, np.ndarray]) -> dict[str, np
     }
 
 
-def _kwargs(
-    model: DynamicsModel, meta: dict[str, Any], workdir: Path, arrays: dict[str, np.ndarray]
-) -> dict[str, Any]:
+def _extras(model: DynamicsModel, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     return {
-        # Models from code: loading runs this package's entry file instead of unpickling an object.
-        "python_model": str(Path(__file__).with_name("pyfunc_entry.py")),
-        "artifacts": write_artifacts(model, meta, workdir),
         "signature": signature(model),
         "input_example": example(model, arrays),
-        "pip_requirements": pip_requirements(),
         "metadata": {"history": model.history, "horizon": model.horizon, "kind": model.kind},
     }
 
 
-def save(
-    model: DynamicsModel, meta: dict[str, Any], path: str | Path, arrays: dict[str, np.ndarray]
-) -> None:
-    """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist);
-    ``arrays`` are per-row store arrays for the input example."""
-    save_model(path, lambda tmp: _kwargs(model, meta, tmp, arrays))
-
-
-def log(model: DynamicsModel, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
-    """Log ``model`` to the active MLflow run as the model named ``model``."""
-    return log_model(lambda tmp: _kwargs(model, meta, tmp, arrays))
-
-
-def load(path: str | Path) -> tuple[DynamicsModel, dict[str, Any]]:
-    """Load a saved evolution model directory directly (no MLflow runtime): model and metadata."""
-    meta, weights = read_artifacts(path, "dozerlab evolution model")
+def _check(meta: dict[str, Any], path: str | Path) -> None:
     if "horizon" not in meta:
         raise DozerlabError(f"{path} is a force model, not an evolution model (no horizon)")
-    return build(meta, weights), meta
+
+
+#: The evolution models' pyfunc directories.
+FORMAT = PyfuncFormat(
+    "dozerlab evolution model",
+    Path(__file__).with_name("pyfunc_entry.py"),
+    build,
+    _extras,
+    _check,
+)
+save, log, load = FORMAT.save, FORMAT.log, FORMAT.load

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -19,8 +19,15 @@ from tqdm import tqdm
 from dozerlab.learn.data import StoreData, split_train_validation
 from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
 from dozerlab.learn.dynamics.windows import WindowBatches, frame_of, windows
-from dozerlab.learn.fitting import EarlyStopping, NormalEquations, device_for, guard
-from dozerlab.learn.train import EpochCallback, TrainResult
+from dozerlab.learn.fitting import (
+    EarlyStopping,
+    EpochCallback,
+    FitOptions,
+    NormalEquations,
+    fit_start,
+    guard,
+)
+from dozerlab.learn.train import TrainResult
 
 
 def _chunks(n: int, size: int) -> list[np.ndarray]:
@@ -199,20 +206,14 @@ def unrolled_loss(
 
 
 def train_dynamics(
-    kind: str,
-    stores: list[StoreData],
-    config: dict[str, Any],
-    *,
-    device: str | None = None,
-    on_epoch: EpochCallback | None = None,
-    progress: bool = True,
+    kind: str, stores: list[StoreData], config: dict[str, Any], **options: Unpack[FitOptions]
 ) -> TrainResult:
     """Train evolution model ``kind`` on ``stores`` (the training points) with
     ``config['dynamics']``; early stopping on the blocks of ``learn.validation_fraction`` /
-    ``learn.validation_block`` (those of the force models)."""
-    dyn, learn, seed = config["dynamics"], config["learn"], int(config.get("seed", 0))
-    torch.manual_seed(seed)
-    dev = device_for(device)
+    ``learn.validation_block`` (those of the force models). ``options`` as
+    :class:`~dozerlab.learn.fitting.FitOptions`."""
+    dyn, learn = config["dynamics"], config["learn"]
+    seed, dev, on_epoch, progress = fit_start(config, options)
     row_dt, bin_size = frame_of(stores)
     h, m = dyn["history"], dyn["horizon"]
     calls, val_calls = (dyn["unroll"] if kind == "unet" else 1), dyn["val_rollout"]
@@ -302,9 +303,4 @@ def _fit_unet(
         bar.set_postfix(train=f"{tr:.4f}", val=f"{va:.4f}")
         if stop.end_epoch(epoch, tr, va):
             break
-    stop.restore()
-    result.train_loss, result.val_loss, result.best_epoch = (
-        stop.train_loss,
-        stop.val_loss,
-        stop.best_epoch,
-    )
+    result.train_loss, result.val_loss, result.best_epoch = stop.restore()

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from dozerlab.learn.data import Samples, StoreData, check_grid, concat
+from dozerlab.learn.fitting import SampleTensors
 from dozerlab.runtime import DozerlabError
 
 
@@ -59,17 +60,8 @@ def frame_of(
     return float(dt), (float(size[0]), float(size[1]), float(size[2]))
 
 
-class WindowBatches:
+class WindowBatches(SampleTensors):
     """The windows' store arrays as tensors on ``device``; :meth:`get` gathers a batch."""
-
-    def __init__(self, samples: Samples, device: torch.device) -> None:
-        self.samples, self.device = samples, device
-        self.velocity = torch.from_numpy(samples.velocity).to(device)
-        self.density = torch.from_numpy(samples.density).to(device)
-        self.blade_velocity = torch.from_numpy(samples.blade_velocity).to(device)
-
-    def __len__(self) -> int:
-        return len(self.samples)
 
     def get(self, sel: np.ndarray, horizon: int) -> tuple[torch.Tensor, ...]:
         """velocity (B, H, X, Y, Z, 3), density (B, H, X, Y, Z), blade_velocity (B, H + m, 3) of

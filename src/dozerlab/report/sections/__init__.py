@@ -15,14 +15,31 @@ To add a section, add a module to this package: the build finds it, no list to e
 from __future__ import annotations
 
 import importlib
+import json
 import pkgutil
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from dozerlab.report import html
 from dozerlab.sweep import SweepPoint
+
+#: The held-out groups of a validation document, in the order the report shows them.
+GROUPS = ("interpolation", "extrapolation")
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What a model-comparison section shows above its per-model blocks: a lead paragraph, a
+    chart (an HTML figure), a table and the table's caption (plain text)."""
+
+    lead: str
+    chart: str
+    columns: Sequence[html.Column]
+    rows: list[list[Any]]
+    caption: str
 
 
 @dataclass(frozen=True)
@@ -45,3 +62,49 @@ def modules() -> list[ModuleType]:
                 raise TypeError(f"report section {module.__name__} defines no {attr}")
         found.append(module)
     return sorted(found, key=lambda m: (m.ORDER, m.__name__))
+
+
+def model_comparison(
+    ctx: Context,
+    models: Iterable[str],
+    path_of: Callable[[Path, str], Path],
+    compare: Callable[[dict[str, dict[str, Any]]], Comparison],
+    detail: Callable[[str, Path, dict[str, Any]], str],
+    anchor: str,
+) -> str | None:
+    """A section comparing models by the JSON documents the results hold of them
+    (``path_of(results, model)``; None when there is none yet): ``compare(documents)``'s lead
+    paragraph, chart (an HTML figure), table and caption, then per model a collapsed block of
+    ``detail(model, path, document)`` with the id ``{anchor}-{model}``."""
+    found = {}
+    for model in models:
+        path = path_of(ctx.results, model)
+        if path.is_file():
+            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
+    if not found:
+        return None
+    c = compare({m: doc for m, (_, doc) in found.items()})
+    parts = [
+        html.paragraph(c.lead),
+        c.chart,
+        html.table(c.columns, c.rows),
+        html.paragraph(c.caption, "caption"),
+    ]
+    parts += [
+        html.details(f"{m}: per-point errors and plots", detail(m, path, doc), f"{anchor}-{m}")
+        for m, (path, doc) in found.items()
+    ]
+    return "\n".join(parts)
+
+
+def group_rows(
+    docs: dict[str, dict[str, Any]], cells: Callable[[str, str, dict[str, Any]], list[Any]]
+) -> list[list[Any]]:
+    """A table row per model and held-out group it was validated on: the model, the group, then
+    ``cells(model, group, overall)`` of the group's overall figures."""
+    return [
+        [m, g, *cells(m, g, doc["groups"][g]["overall"])]
+        for m, doc in docs.items()
+        for g in GROUPS
+        if g in doc["groups"]
+    ]

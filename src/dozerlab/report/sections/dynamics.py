@@ -4,7 +4,6 @@ the JSON and PNGs that ``dozerlab validate-dynamics`` wrote."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -12,14 +11,13 @@ from typing import Any
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.sections import Context
+from dozerlab.report.sections import GROUPS, Comparison, Context, group_rows, model_comparison
 from dozerlab.report.sections.models import _point
 from dozerlab.sweep import dynamics_validation_path
 
 TITLE = "Field-evolution models on held-out points"
 ORDER = 60
 
-GROUPS = ("interpolation", "extrapolation")
 #: Issue 15's targets: the best model's one-step and 50-step velocity errors at most this
 #: fraction of persistence's, and mass within this fraction of the truth over 100 steps.
 RATIO_TARGET, MASS_TARGET = 0.6, 0.05
@@ -44,6 +42,16 @@ COLUMNS = [
 ]
 
 
+#: The comparison table's columns: model, group, the errors, and the ratios to persistence.
+TABLE_COLUMNS = [
+    html.Column("model", text=True),
+    html.Column("held-out group", text=True),
+    *COLUMNS,
+    html.Column("one step / persistence", "", _num),
+    html.Column("50 steps / persistence", "", _num),
+]
+
+
 def _cells(o: dict[str, Any]) -> list[Any]:
     at = o["rollout_at"]
     return [
@@ -58,50 +66,26 @@ def _cells(o: dict[str, Any]) -> list[Any]:
 
 
 def render(ctx: Context) -> str | None:
-    found = {}
-    for model in ctx.cfg["dynamics"]["models"]:
-        path = dynamics_validation_path(ctx.results, model)
-        if path.is_file():
-            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
-    if not found:
-        return None
-    docs = {m: doc for m, (_, doc) in found.items()}
-    rows = [
-        [m, g, *_cells(doc["groups"][g]["overall"]), *_ratios(docs, m, g)]
-        for m, doc in docs.items()
-        for g in GROUPS
-        if g in doc["groups"]
-    ]
-    columns = [
-        html.Column("model", text=True),
-        html.Column("held-out group", text=True),
-        *COLUMNS,
-        html.Column("one step / persistence", "", _num),
-        html.Column("50 steps / persistence", "", _num),
-    ]
-    parts = [
-        html.paragraph(_verdict(docs)),
-        html.figure(
-            rollout_chart(docs),
-            "Velocity error along rollouts started from true fields, "
-            "per model and held-out group (lower is better).",
-        ),
-        html.table(columns, rows),
-        html.paragraph(
-            "Velocity error: sqrt(Σ ρ|v − v_true|²) / sqrt(Σ ρ|v_true|²) in the world frame, "
-            "weighted by the true density ρ (empty bins count for nothing); density error: the "
-            "relative L2. One step: every window of the held-out runs; rollouts: the model fed "
-            "its own output from true fields at a few rows of each run, with the run's blade "
-            "velocity; a number of steps past a run's end reads at its end. Mass: Σ ρ V_bin in "
-            "the sampling volume, predicted against true.",
-            "caption",
-        ),
-    ]
-    parts += [
-        html.details(f"{m}: per-point errors and plots", _model(m, path, doc), f"dynamics-{m}")
-        for m, (path, doc) in found.items()
-    ]
-    return "\n".join(parts)
+    models = ctx.cfg["dynamics"]["models"]
+    return model_comparison(ctx, models, dynamics_validation_path, _compare, _model, "dynamics")
+
+
+def _compare(docs: dict[str, dict[str, Any]]) -> Comparison:
+    rows = group_rows(docs, lambda m, g, overall: [*_cells(overall), *_ratios(docs, m, g)])
+    chart = html.figure(
+        rollout_chart(docs),
+        "Velocity error along rollouts started from true fields, "
+        "per model and held-out group (lower is better).",
+    )
+    caption = (
+        "Velocity error: sqrt(Σ ρ|v − v_true|²) / sqrt(Σ ρ|v_true|²) in the world frame, "
+        "weighted by the true density ρ (empty bins count for nothing); density error: the "
+        "relative L2. One step: every window of the held-out runs; rollouts: the model fed "
+        "its own output from true fields at a few rows of each run, with the run's blade "
+        "velocity; a number of steps past a run's end reads at its end. Mass: Σ ρ V_bin in "
+        "the sampling volume, predicted against true."
+    )
+    return Comparison(_verdict(docs), chart, TABLE_COLUMNS, rows, caption)
 
 
 def _ratios(docs: dict[str, dict[str, Any]], model: str, group: str) -> list[float | None]:

@@ -4,7 +4,6 @@ JSON and PNGs that ``dozerlab validate`` wrote."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -12,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.sections import Context
+from dozerlab.report.sections import GROUPS, Comparison, Context, group_rows, model_comparison
 from dozerlab.sweep import fmt_number, validation_path
 
 TITLE = "Models on held-out points"
@@ -20,7 +19,6 @@ ORDER = 50
 
 #: The compared components (the blade's draft force, lift and pitch torque) and their units.
 COMPARED = {"force_x": "kN", "force_z": "kN", "torque_y": "kN·m"}
-GROUPS = ("interpolation", "extrapolation")
 #: SPEC §8: the thesis's CNN, about 10 % force error, measured on its training data only.
 THESIS_ERROR = 0.10
 
@@ -53,42 +51,25 @@ def _cells(m: dict[str, dict[str, float]]) -> list[Any]:
 
 
 def render(ctx: Context) -> str | None:
-    found = {}
-    for model in ctx.cfg["learn"]["models"]:
-        path = validation_path(ctx.results, model)
-        if path.is_file():
-            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
-    if not found:
-        return None
-    results = {m: doc for m, (_, doc) in found.items()}
-    rows = [
-        [m, g, *_cells(doc["groups"][g]["overall"])]
-        for m, doc in results.items()
-        for g in GROUPS
-        if g in doc["groups"]
-    ]
-    parts = [
-        html.paragraph(_best(results)),
-        html.figure(
-            error_chart(results),
-            "Relative RMSE of each model on the held-out points, per group (lower is better). "
-            "The dashed line is the thesis CNN's ≈ 10 % force error, measured on its training "
-            "data only.",
-        ),
-        html.table(_columns("model"), rows),
-        html.paragraph(
-            "Relative RMSE: the RMSE of the prediction over the RMS of the measured value, over "
-            "every step of the group's held-out runs; R² = 1 − SSE/SST. force_x is the draft "
-            "force (along the blade's motion), force_z the vertical force, torque_y the pitch "
-            "torque about the blade tip.",
-            "caption",
-        ),
-    ]
-    parts += [
-        html.details(f"{m}: per-point errors and plots", _model(m, path, doc), f"validation-{m}")
-        for m, (path, doc) in found.items()
-    ]
-    return "\n".join(parts)
+    models = ctx.cfg["learn"]["models"]
+    return model_comparison(ctx, models, validation_path, _compare, _model, "validation")
+
+
+def _compare(results: dict[str, dict[str, Any]]) -> Comparison:
+    rows = group_rows(results, lambda m, g, overall: _cells(overall))
+    chart = html.figure(
+        error_chart(results),
+        "Relative RMSE of each model on the held-out points, per group (lower is better). "
+        "The dashed line is the thesis CNN's ≈ 10 % force error, measured on its training "
+        "data only.",
+    )
+    caption = (
+        "Relative RMSE: the RMSE of the prediction over the RMS of the measured value, over "
+        "every step of the group's held-out runs; R² = 1 − SSE/SST. force_x is the draft "
+        "force (along the blade's motion), force_z the vertical force, torque_y the pitch "
+        "torque about the blade tip."
+    )
+    return Comparison(_best(results), chart, _columns("model"), rows, caption)
 
 
 def _best(results: dict[str, dict[str, Any]]) -> str:
