@@ -139,7 +139,11 @@ class ForcePredictor:
         """Force (3,) N and torque (3,) N·m of the last of the given consecutive rows (T, …)."""
         k = min(self.history, density.shape[0])
         arrays = check_inputs(
-            {"velocity": velocity[-k:], "density": density[-k:], "blade_velocity": blade_velocity[-k:]},
+            {
+                "velocity": velocity[-k:],
+                "density": density[-k:],
+                "blade_velocity": blade_velocity[-k:],
+            },
             self.module.grid,
         )
         # only the last row's window: the pyfunc would run the network on all k of them
