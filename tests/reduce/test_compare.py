@@ -117,6 +117,9 @@ def test_targets_met_and_missing_figures():
         "nothing_left": True,
         "nothing_through": False,  # 0.2 mm into a body
     }
+    # no deeper than NDEM's own final state of the point: its compliant contacts
+    assert targets_met(metrics | {"body_depth_final_ndem_m": 3e-4}, targets)["nothing_through"]
+    assert not targets_met(metrics | {"body_depth_final_ndem_m": 1e-4}, targets)["nothing_through"]
 
 
 def test_a_run_against_itself_has_no_error(ndem_run):
