@@ -51,6 +51,7 @@ figcaption { font-size: 0.9em; color: #444; max-width: 60em; }
 .note { border-left: 4px solid #d08c00; background: #fff6e0; padding: 0.6em 1em; margin: 1em 0; }
 .missing { color: #a33; }
 .caption { color: #444; font-size: 0.95em; max-width: 60em; }
+caption.caption { text-align: left; caption-side: top; padding-bottom: 0.3em; }
 details { margin: 0.4em 0 0.8em; } summary { cursor: pointer; font-weight: 600; }
 """
 
