@@ -327,3 +327,22 @@ REDUCED_RUN = {
     "learn": {"epochs": 1, "history": 2, "validation_fraction": 0.2, "validation_block": 0},
     "reduced": {"projection": {"iterations": 8}},
 }
+
+
+def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
+    """The MLflow child runs a sweep of ``cfg`` records, per rule (trajectories and the report
+    record none)."""
+    points = P.sweep_points(cfg)
+    models, dynamics = cfg["learn"]["models"], cfg["dynamics"]["models"]
+    reduced = cfg["reduced"]["dynamics_models"]
+    held_out = [p for p in points if p.role != "train"]
+    return {
+        "bed": len(cfg["sweep"]["scenarios"]),
+        "simulate": len(points),
+        "train": len(models),
+        "validate": len(models),
+        "train_dynamics": len(dynamics),
+        "validate_dynamics": len(dynamics),
+        "reduce": len(reduced) * len(held_out),
+        "compare_reduced": len(reduced),
+    }

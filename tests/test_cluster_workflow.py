@@ -21,6 +21,7 @@ import pytest
 from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.tracking import PARENT_ENV
+from tests.helpers import expected_job_runs
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
@@ -115,20 +116,7 @@ def sweep(tmp_path_factory):
     return workdir, experiment, done.stderr
 
 
-HELD_OUT = [p for p in POINTS if p.role != "train"]
-DYNAMICS = CFG["dynamics"]["models"]
-REDUCED = CFG["reduced"]["dynamics_models"]
-#: The MLflow child run of every job that records one (trajectories and the report do not).
-EXPECTED_RUNS = {
-    "bed": 1,
-    "simulate": len(POINTS),
-    "train": len(MODELS),
-    "validate": len(MODELS),
-    "train_dynamics": len(DYNAMICS),
-    "validate_dynamics": len(DYNAMICS),
-    "reduce": len(REDUCED) * len(HELD_OUT),
-    "compare_reduced": len(REDUCED),
-}
+EXPECTED_RUNS = expected_job_runs(CFG)
 
 
 def test_every_job_ran_as_a_slurm_job_with_its_log_kept(sweep):

@@ -24,6 +24,7 @@ from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.runtime import process_token
 from dozerlab.tracking import PARENT_ENV
+from tests.helpers import expected_job_runs
 
 pytestmark = pytest.mark.slow
 
@@ -187,16 +188,7 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])
     children = [r for r in all_runs if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id]
     rules = sorted(r.data.tags["rule"] for r in children)
-    expected = {
-        "bed": 1,
-        "simulate": len(POINTS),
-        "train": len(MODELS),
-        "validate": len(MODELS),
-        "train_dynamics": len(DYNAMICS),
-        "validate_dynamics": len(DYNAMICS),
-        "reduce": len(REDUCED) * len(HELD_OUT),
-        "compare_reduced": len(REDUCED),
-    }
+    expected = expected_job_runs(CFG)
     assert {rule: rules.count(rule) for rule in expected} == expected
     assert len(all_runs) == 1 + len(children)
     for child in children:
