@@ -7,6 +7,7 @@ from dozerlab.learn.fitting import (
     EarlyStopping,
     NormalEquations,
     TrainingDiverged,
+    adam,
     device_for,
     guard,
     solve_ridge,
@@ -97,3 +98,24 @@ def test_early_stopping_waits_patience_epochs_and_restores_the_best_state():
 def test_device_is_the_named_one_or_the_best_present():
     assert device_for("cpu") == torch.device("cpu")
     assert device_for().type == ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def test_fused_adam_takes_the_reference_adam_steps():
+    def steps(make_opt):  # type: ignore[no-untyped-def]
+        torch.manual_seed(0)
+        model = torch.nn.Sequential(torch.nn.Linear(7, 5), torch.nn.GELU(), torch.nn.Linear(5, 2))
+        opt = make_opt(model.parameters())
+        x, y = torch.randn(16, 7), torch.randn(16, 2)
+        for _ in range(5):
+            opt.zero_grad()
+            torch.nn.functional.mse_loss(model(x), y).backward()
+            opt.step()
+        return [p.detach().clone() for p in model.parameters()]
+
+    fused = steps(lambda p: adam(p, 1e-2, 1e-3))
+    reference = steps(lambda p: torch.optim.Adam(p, lr=1e-2, weight_decay=1e-3, foreach=False))
+    assert any(
+        not torch.equal(a, b) for a, b in zip(fused, steps(lambda p: adam(p, 1e-2)), strict=True)
+    )
+    for a, b in zip(fused, reference, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=1e-5)

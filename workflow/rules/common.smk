@@ -100,6 +100,23 @@ def dynamics_input(wildcards):
     return str(P.dynamics_model_path(RESULTS, wildcards.dynamics_model))
 
 
+# The schedule on few cores (snakemake's priorities, highest first): every model trains on all
+# the training runs, so those run before the held-out runs, which only the validations and
+# reduced runs need and which fill the cores beside the training. The force U-Net trains
+# longest (BENCHMARKS.md): started first, the shorter trainings fill the other cores.
+TRAINING_RUNS = {(p.scenario, P.fmt_number(p.speed), P.fmt_number(p.depth)) for p in P.by_role(POINTS, "train")}
+
+
+def simulate_priority(wildcards):
+    """1 for a training run of the sweep, 0 for any other run."""
+    return int((wildcards.scenario, wildcards.speed, wildcards.depth) in TRAINING_RUNS)
+
+
+def train_priority(wildcards):
+    """2 for the force U-Net, 1 for the other models."""
+    return 2 if wildcards.model == "unet" else 1
+
+
 def reduced_of(dynamics_model):
     """The reduced stores and final states of one dynamics model on the held-out points."""
     return [str(P.reduced_path(RESULTS, dynamics_model, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]

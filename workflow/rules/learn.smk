@@ -11,6 +11,7 @@ rule train:
     threads: config["threads"]["train"]
     resources:
         **cluster.job_resources(config, "train"),
+    priority: train_priority
     params:
         cfg=lambda wc: config_json("seed", "learn", "mlflow"),
     shell:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, TypedDict
 
 import torch
@@ -47,6 +47,15 @@ def fit_start(
     torch.manual_seed(seed)
     device = device_for(options.get("device"))
     return seed, device, options.get("on_epoch"), options.get("progress", True)
+
+
+def adam(
+    params: Iterable[torch.nn.Parameter], lr: float, weight_decay: float = 0.0
+) -> torch.optim.Adam:
+    """Adam with torch's fused kernel: one pass over each parameter per step where the default
+    makes a dozen (the MLP's 4.7 M parameters, CPU, 1 thread: 90 -> 16 ms per step; the
+    updates agree to round-off, BENCHMARKS.md)."""
+    return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=True)
 
 
 class SampleTensors:

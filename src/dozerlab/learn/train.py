@@ -19,6 +19,7 @@ from dozerlab.learn.fitting import (
     FitOptions,
     SampleTensors,
     TrainingDiverged,
+    adam,
     device_for,
     fit_start,
     guard,
@@ -216,11 +217,9 @@ def _fit_gradient(
     on_epoch: EpochCallback | None,
     progress: bool,
 ) -> None:
-    opt = torch.optim.Adam(
-        model.parameters(), lr=learn["learning_rate"], weight_decay=learn["weight_decay"]
-    )
+    opt = adam(model.parameters(), learn["learning_rate"], learn["weight_decay"])
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
-        opt, factor=0.5, patience=max(1, learn["patience"] // 3)
+        opt, factor=0.5, patience=learn["lr_patience"]
     )
     gen = np.random.default_rng(seed)
     stop = EarlyStopping(model, learn["patience"], on_epoch)

@@ -24,6 +24,7 @@ from dozerlab.learn.fitting import (
     EpochCallback,
     FitOptions,
     NormalEquations,
+    adam,
     fit_start,
     guard,
 )
@@ -277,7 +278,7 @@ def _fit_unet(
     progress: bool,
 ) -> None:
     calls = dyn["unroll"]
-    opt = torch.optim.Adam(model.parameters(), lr=dyn["learning_rate"])
+    opt = adam(model.parameters(), dyn["learning_rate"])
     gen = np.random.default_rng(seed)
     tgen = torch.Generator(device=train.device).manual_seed(seed)
     stop = EarlyStopping(model, dyn["patience"], on_epoch)
