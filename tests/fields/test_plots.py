@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import io
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
-from PIL import Image
+from matplotlib.artist import Artist
+from matplotlib.figure import Figure
+from PIL import Image, ImageSequence
 
 from dozerlab.cli import main
+from dozerlab.fields.plots import write_gif
 from dozerlab.fields.store import write_store
 
 
@@ -61,3 +68,50 @@ def test_legacy_commands_round_trip(tmp_path, store_arrays):
     (tmp_path / "bad.bin").write_bytes(b"\0" * 30)
     assert main(["import-legacy", str(tmp_path / "bad.bin"), str(tmp_path / "h.zarr")]) == 2
     assert not (tmp_path / "h.zarr").exists()
+
+
+def _stepped_figure() -> tuple[Figure, Callable[[int], None], list[Artist]]:
+    """A figure whose image and title show the step; returns it, its show and its artists."""
+    fig = Figure(figsize=(3, 2))
+    ax = fig.add_subplot()
+    image = ax.imshow(np.zeros((4, 5)), vmin=0.0, vmax=3.0)
+    ax.set_xlabel("x (m)")
+
+    def show(step: int) -> None:
+        image.set_data(np.arange(20.0).reshape(4, 5) % (step + 1))
+        ax.set_title(f"step {step}")
+
+    show(0)
+    return fig, show, [image, ax.title]
+
+
+def _gif_frames(path: Path) -> list[np.ndarray]:
+    # the iterator seeks one image: convert each frame while it is current
+    return [
+        np.asarray(f.convert("RGB"), dtype=int) for f in ImageSequence.Iterator(Image.open(path))
+    ]
+
+
+def test_gif_frames_drawn_over_the_static_figure_match_full_draws(tmp_path):
+    fig, show, animated = _stepped_figure()
+    write_gif(fig, show, animated, [0, 1, 2], tmp_path / "blit.gif", fps=5, dpi=50)
+    full = []
+    for step in range(3):
+        ref, ref_show, _ = _stepped_figure()
+        ref_show(step)
+        buf = io.BytesIO()
+        ref.savefig(buf, format="rgba", dpi=50)
+        full.append(Image.frombuffer("RGBA", (150, 100), buf.getvalue(), "raw", "RGBA", 0, 1))
+    rgb = [im.convert("RGB") for im in full]
+    rgb[0].save(tmp_path / "full.gif", format="GIF", save_all=True, append_images=rgb[1:])
+    # Animated artists are drawn above the static ones: the image covers the axes' frame, a
+    # band of 2 pixels around its edges; everything else (the title too) is as drawn in full.
+    x0, y0, x1, y1 = np.round(fig.axes[0].get_window_extent().extents).astype(int)
+    rows, cols = np.mgrid[0:100, 0:150]
+    frame = (np.minimum(abs(cols - x0), abs(cols - x1)) <= 2) | (
+        np.minimum(abs(rows - (100 - y0)), abs(rows - (100 - y1))) <= 2
+    )
+    got, want = _gif_frames(tmp_path / "blit.gif"), _gif_frames(tmp_path / "full.gif")
+    assert len(got) == len(want) == 3
+    for g, w in zip(got, want, strict=True):
+        assert not np.abs(g - w).sum(axis=-1)[~frame].any()

@@ -7,12 +7,12 @@ Figures use matplotlib's object API (no pyplot state), so they are safe in worke
 
 from __future__ import annotations
 
-import io
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
+from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 
 from dozerlab.fields.store import store_config
@@ -63,6 +63,11 @@ class _Slice:
         ax.set_aspect("equal")
         ax.set_xlabel("x in front of the blade (m)")
         ax.set_ylabel("z above the blade tip (m)")
+
+    @property
+    def artists(self) -> list[Artist]:
+        """What :meth:`show` changes: the density map, the arrows and the title."""
+        return [self.mesh, self.arrows, self.ax.title]
 
     def show(self, step: int) -> None:
         ds, j = self.ds, self.j
@@ -134,35 +139,45 @@ def animate(ds: xr.Dataset, path: str | Path, *, frames: int = 60, fps: int = 10
     fig = Figure(figsize=(8, 4.5), layout="constrained")
     view = _Slice(fig, ds, vmax)
     view.show(int(steps[0]))
-    return write_gif(fig, lambda s: view.show(int(s)), steps, path, fps=fps, dpi=80)
+    return write_gif(fig, lambda s: view.show(int(s)), view.artists, steps, path, fps=fps, dpi=80)
 
 
 def write_gif(
     fig: Figure,
     show: Callable[[int], None],
+    animated: Sequence[Artist],
     steps: Sequence[int] | np.ndarray,
     path: str | Path,
     *,
     fps: int,
     dpi: int,
 ) -> Path:
-    """Draw ``fig`` once per step (``show(step)`` updates it) and write the frames as a looping
-    GIF at ``path``, marked as ours (:data:`dozerlab.runtime.ANIMATION`), ``fps`` frames per s."""
+    """Draw ``fig`` once per step (``show(step)`` updates the ``animated`` artists, the only
+    ones that change) and write the frames as a looping GIF at ``path``, marked as ours
+    (:data:`dozerlab.runtime.ANIMATION`), ``fps`` frames per s.
+
+    The rest of the figure (axes, ticks, labels, colour bars) is drawn once and each frame
+    draws only ``animated`` over it (blitting): redrawing the text of every axis took ≈ 0.2 s a
+    frame. Animated artists are drawn above the static ones, in the order given.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
-    fig.canvas.draw()
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
     fig.set_layout_engine("none")  # fix the layout once; frames only swap data
-    width, height = (int(v) for v in fig.get_size_inches() * dpi)
+    for artist in animated:
+        artist.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
     images = []
     for s in steps:
         show(int(s))
-        buf = io.BytesIO()
-        fig.savefig(buf, format="rgba", dpi=dpi)
-        images.append(
-            Image.frombuffer("RGBA", (width, height), buf.getvalue(), "raw", "RGBA", 0, 1).convert(
-                "RGB"
-            )
-        )
+        canvas.restore_region(background)
+        for artist in animated:
+            fig.draw_artist(artist)
+        images.append(Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy()))
     with atomic_output(path, ANIMATION) as tmp:
         # The comment marks the GIF as ours, so a later run may replace it (runtime.ANIMATION).
         images[0].save(

@@ -133,5 +133,7 @@ def animate_pair(
         line_r.set_ydata(surface(reduced, s, vmax))
 
     show(int(steps[0]))
+    # the legend last: it stays above the lines, as in a full draw
+    animated = [a for view in views for a in view.artists] + [line_n, line_r, ax.get_legend()]
     # dpi 60: ≈1 MB a point, and the report embeds several
-    return write_gif(fig, show, steps, path, fps=fps, dpi=60)
+    return write_gif(fig, show, animated, steps, path, fps=fps, dpi=60)
