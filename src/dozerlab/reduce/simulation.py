@@ -67,8 +67,9 @@ class ReducedSettings:
 
     iterations: int = 24
     method: str = "gauss_seidel"
-    relaxation: float = 1.0
+    relaxation: float = 1.5
     slop: float = 0.05
+    tolerance: float = 0.01
     advect_margin: float = 2.0
     rest_speed: float = 0.05
     divergence_overlap: float = 0.5
@@ -82,6 +83,7 @@ class ReducedSettings:
             method=str(p["method"]),
             relaxation=float(p["relaxation"]),
             slop=float(p["slop"]),
+            tolerance=float(p["tolerance"]),
             advect_margin=float(r["advect_margin"]),
             rest_speed=float(r["rest_speed"]),
             divergence_overlap=float(r["divergence_overlap"]),
@@ -256,6 +258,7 @@ class ReducedState:
             method=s.method,
             relaxation=s.relaxation,
             slop=s.slop,
+            tolerance=s.tolerance,
         )
         if not np.isfinite(xs).all():
             raise DozerlabError("reduced step produced non-finite positions")
