@@ -57,26 +57,38 @@ def _pair_gap(x, radii, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _scan_pairs(x, reach, cells, start, dims, pa, pb):  # pragma: no cover - compiled
-    """Count the pairs (a, b), a < b, closer than reach_a + reach_b; write the first pa.size."""
+def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
+    """Count the pairs (a, b), a < b, closer than reach_a + reach_b; write the first pa.size.
+
+    Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
+    slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself).
+    """
     k = 0
-    nyz = dims[1] * dims[2]
-    for a in range(x.shape[0]):
-        c = cells[a]
-        cx, cy, cz = c // nyz, (c // dims[2]) % dims[1], c % dims[2]
-        for ix in range(max(cx - 1, 0), min(cx + 2, dims[0])):
-            for iy in range(max(cy - 1, 0), min(cy + 2, dims[1])):
-                for iz in range(max(cz - 1, 0), min(cz + 2, dims[2])):
-                    q = (ix * dims[1] + iy) * dims[2] + iz
-                    for b in range(max(start[q], a + 1), start[q + 1]):
-                        d0 = x[a, 0] - x[b, 0]
-                        d1 = x[a, 1] - x[b, 1]
-                        d2 = x[a, 2] - x[b, 2]
-                        s = reach[a] + reach[b]
-                        if d0 * d0 + d1 * d1 + d2 * d2 < s * s:
-                            if k < pa.size:
-                                pa[k], pb[k] = a, b
-                            k += 1
+    for cx in range(dims[0]):
+        for cy in range(dims[1]):
+            for cz in range(dims[2]):
+                c = (cx * dims[1] + cy) * dims[2] + cz
+                if start[c] == start[c + 1]:
+                    continue
+                for ix in range(cx, min(cx + 2, dims[0])):
+                    for iy in range(max(cy - 1, 0), min(cy + 2, dims[1])):
+                        if ix == cx and iy < cy:
+                            continue
+                        for iz in range(max(cz - 1, 0), min(cz + 2, dims[2])):
+                            q = (ix * dims[1] + iy) * dims[2] + iz
+                            if q < c:
+                                continue
+                            for a in range(start[c], start[c + 1]):
+                                xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
+                                for b in range(max(start[q], a + 1), start[q + 1]):
+                                    d0 = xa0 - x[b, 0]
+                                    d1 = xa1 - x[b, 1]
+                                    d2 = xa2 - x[b, 2]
+                                    s = ra + reach[b]
+                                    if d0 * d0 + d1 * d1 + d2 * d2 < s * s:
+                                        if k < pa.size:
+                                            pa[k], pb[k] = a, b
+                                        k += 1
     return k
 
 
@@ -95,10 +107,10 @@ def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
         start[c + 1] += start[c]
     pa = np.empty(8 * x.shape[0] + 16, np.int64)
     pb = np.empty_like(pa)
-    k = _scan_pairs(x, reach, cells, start, dims, pa, pb)
+    k = _scan_pairs(x, reach, start, dims, pa, pb)
     if k > pa.size:  # a packing denser than 16 candidates a sphere (overlapping grains): again
         pa, pb = np.empty(k, np.int64), np.empty(k, np.int64)
-        _scan_pairs(x, reach, cells, start, dims, pa, pb)
+        _scan_pairs(x, reach, start, dims, pa, pb)
     return pa[:k], pb[:k]
 
 
@@ -192,10 +204,19 @@ def _iterate(
                 continue
             tests += 1
             rmin = min(radii[i], radii[j])
-            g, n0, n1, n2 = _pair_gap(x, radii, i, j)
-            g -= slop * rmin
-            if g <= 0.0:
+            reach = radii[i] + radii[j] - slop * rmin
+            d0 = x[i, 0] - x[j, 0]
+            d1 = x[i, 1] - x[j, 1]
+            d2 = x[i, 2] - x[j, 2]
+            dd = d0 * d0 + d1 * d1 + d2 * d2
+            if dd >= reach * reach:  # most tests: apart, no square root needed
                 continue
+            dist = np.sqrt(dd)
+            g = reach - dist
+            if dist > 0.0:
+                n0, n1, n2 = d0 / dist, d1 / dist, d2 / dist
+            else:
+                n0, n1, n2 = 0.0, 0.0, 1.0
             worst = max(worst, g / rmin)
             if gauss_seidel:
                 si, sj = relaxation * g * inv_m[i] / wsum, relaxation * g * inv_m[j] / wsum
