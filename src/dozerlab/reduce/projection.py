@@ -245,9 +245,17 @@ def _iterate(
             if inv_m[i] <= 0.0 or (skip and stamp[i] < s - 1):
                 continue
             tests += 1
-            g, n0, n1, n2 = _body_test(
-                x[i], radii[i], 0.0, kind[b], bpos[b], brot[b], bext[b], bnormal[b]
-            )
+            if kind[b] == PLANE:  # inline: the ground and walls, most body contacts
+                n0, n1, n2 = bnormal[b, 0], bnormal[b, 1], bnormal[b, 2]
+                g = radii[i] - (
+                    (x[i, 0] - bpos[b, 0]) * n0
+                    + (x[i, 1] - bpos[b, 1]) * n1
+                    + (x[i, 2] - bpos[b, 2]) * n2
+                )
+            else:
+                g, n0, n1, n2 = _body_test(
+                    x[i], radii[i], 0.0, kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+                )
             if g <= 0.0:
                 continue
             worst = max(worst, g / radii[i])
