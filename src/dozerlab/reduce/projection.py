@@ -218,26 +218,22 @@ def _iterate(
             else:
                 n0, n1, n2 = 0.0, 0.0, 1.0
             worst = max(worst, g / rmin)
+            # Gauss-Seidel moves the spheres at once (over-relaxed), Jacobi gathers the corrections
+            out = x if gauss_seidel else dx
+            f = (relaxation if gauss_seidel else 1.0) * g / wsum
+            si, sj = f * inv_m[i], f * inv_m[j]
+            out[i, 0] += si * n0
+            out[i, 1] += si * n1
+            out[i, 2] += si * n2
+            out[j, 0] -= sj * n0
+            out[j, 1] -= sj * n1
+            out[j, 2] -= sj * n2
             if gauss_seidel:
-                si, sj = relaxation * g * inv_m[i] / wsum, relaxation * g * inv_m[j] / wsum
-                x[i, 0] += si * n0
-                x[i, 1] += si * n1
-                x[i, 2] += si * n2
-                x[j, 0] -= sj * n0
-                x[j, 1] -= sj * n1
-                x[j, 2] -= sj * n2
                 if inv_m[i] > 0.0:
                     stamp[i] = s
                 if inv_m[j] > 0.0:
                     stamp[j] = s
             else:
-                si, sj = g * inv_m[i] / wsum, g * inv_m[j] / wsum
-                dx[i, 0] += si * n0
-                dx[i, 1] += si * n1
-                dx[i, 2] += si * n2
-                dx[j, 0] -= sj * n0
-                dx[j, 1] -= sj * n1
-                dx[j, 2] -= sj * n2
                 count[i] += 1.0
                 count[j] += 1.0
         for k in range(bi.shape[0]):
@@ -259,15 +255,13 @@ def _iterate(
             if g <= 0.0:
                 continue
             worst = max(worst, g / radii[i])
+            out = x if gauss_seidel else dx
+            out[i, 0] += g * n0
+            out[i, 1] += g * n1
+            out[i, 2] += g * n2
             if gauss_seidel:
-                x[i, 0] += g * n0
-                x[i, 1] += g * n1
-                x[i, 2] += g * n2
                 stamp[i] = s
             else:
-                dx[i, 0] += g * n0
-                dx[i, 1] += g * n1
-                dx[i, 2] += g * n2
                 count[i] += 1.0
         if not gauss_seidel:
             for i in range(n):
