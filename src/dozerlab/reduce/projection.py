@@ -8,11 +8,13 @@ mass 0 (a frozen grain) is an obstacle like a body.
 
 Two schemes: ``gauss_seidel`` applies each correction at once (serial, converges fastest);
 ``jacobi`` gathers every sphere's corrections, then moves it by their average times the
-relaxation factor (Macklin et al. 2014's "local" averaging: order-free and robust). Candidate
-contacts come once per call from the NDEM broad phase and narrow phase
-(:mod:`dozerlab.ndem.broadphase`, :func:`dozerlab.ndem.contacts.body_contacts`) with a margin,
-and are re-tested every iteration. A last pass pushes every sphere fully out of the bodies, so no
-sphere ends inside the ground, a wall or the blade whatever the iteration count.
+relaxation factor (Macklin et al. 2014's "local" averaging: order-free and robust). The spheres
+are sorted by cell and the candidate contacts found once per call with a margin (a serial cell
+grid; :func:`dozerlab.ndem.contacts._body_test` for the bodies). Gauss-Seidel re-tests only the
+contacts of spheres that moved since their last test, and the sweeps stop early once the largest
+correction is within ``tolerance`` (see :func:`project`): most of a step's contacts are a settled
+bed's, resolved in the first sweep. A last pass pushes every sphere fully out of the bodies, so
+no sphere ends inside the ground, a wall or the blade whatever the iteration count.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from dozerlab.ndem import broadphase
-from dozerlab.ndem.contacts import _body_test, body_contacts
+from dozerlab.ndem.contacts import PLANE, _body_test
 
 METHODS = ("jacobi", "gauss_seidel")
 
@@ -55,6 +57,100 @@ def _pair_gap(x, radii, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
+    """Count the pairs (a, b), a < b, closer than reach_a + reach_b; write the first pa.size.
+
+    Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
+    slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself).
+    """
+    k = 0
+    for cx in range(dims[0]):
+        for cy in range(dims[1]):
+            for cz in range(dims[2]):
+                c = (cx * dims[1] + cy) * dims[2] + cz
+                if start[c] == start[c + 1]:
+                    continue
+                for ix in range(cx, min(cx + 2, dims[0])):
+                    for iy in range(max(cy - 1, 0), min(cy + 2, dims[1])):
+                        if ix == cx and iy < cy:
+                            continue
+                        for iz in range(max(cz - 1, 0), min(cz + 2, dims[2])):
+                            q = (ix * dims[1] + iy) * dims[2] + iz
+                            if q < c:
+                                continue
+                            for a in range(start[c], start[c + 1]):
+                                xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
+                                for b in range(max(start[q], a + 1), start[q + 1]):
+                                    d0 = xa0 - x[b, 0]
+                                    d1 = xa1 - x[b, 1]
+                                    d2 = xa2 - x[b, 2]
+                                    s = ra + reach[b]
+                                    if d0 * d0 + d1 * d1 + d2 * d2 < s * s:
+                                        if k < pa.size:
+                                            pa[k], pb[k] = a, b
+                                        k += 1
+    return k
+
+
+@njit(cache=True)
+def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
+    """Pairs (a, b), a < b, of spheres closer than reach_a + reach_b (m), in one serial pass.
+
+    ``x`` (N, 3) is sorted by cell (x-major) on the grid (lo, cell, dims), so the pairs come out
+    in memory order and a Gauss-Seidel sweep over them walks the arrays forward.
+    """
+    cells = broadphase.cell_indices(x, lo, cell, dims)
+    start = np.zeros(dims[0] * dims[1] * dims[2] + 1, np.int64)
+    for c in cells:
+        start[c + 1] += 1
+    for c in range(start.size - 1):
+        start[c + 1] += start[c]
+    pa = np.empty(8 * x.shape[0] + 16, np.int64)
+    pb = np.empty_like(pa)
+    k = _scan_pairs(x, reach, start, dims, pa, pb)
+    if k > pa.size:  # a packing denser than 16 candidates a sphere (overlapping grains): again
+        pa, pb = np.empty(k, np.int64), np.empty(k, np.int64)
+        _scan_pairs(x, reach, start, dims, pa, pb)
+    return pa[:k], pb[:k]
+
+
+@njit(cache=True)
+def _body_candidates(x, radii, inv_m, margin, kind, bpos, brot, bext, bnormal):  # pragma: no cover
+    """(sphere, body) pairs of movable spheres within ``margin`` (m) of a body, serial.
+
+    Planes are tested inline (a dot product), boxes only within their bounding sphere.
+    """
+    n, nb = x.shape[0], kind.shape[0]
+    si = np.empty(n * nb, np.int64)
+    sb = np.empty(n * nb, np.int64)
+    bound = np.zeros(nb)
+    for b in range(nb):
+        e = bext[b]
+        bound[b] = np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+    k = 0
+    for i in range(n):
+        if inv_m[i] <= 0.0:
+            continue
+        x0, x1, x2, ri = x[i, 0], x[i, 1], x[i, 2], radii[i]
+        for b in range(nb):
+            d0, d1, d2 = x0 - bpos[b, 0], x1 - bpos[b, 1], x2 - bpos[b, 2]
+            if kind[b] == PLANE:
+                near = ri - (d0 * bnormal[b, 0] + d1 * bnormal[b, 1] + d2 * bnormal[b, 2]) > -margin
+            else:
+                reach = ri + margin + bound[b]
+                near = d0 * d0 + d1 * d1 + d2 * d2 <= reach * reach
+                if near:
+                    g, _, _, _ = _body_test(
+                        x[i], ri, margin, kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+                    )
+                    near = g > -margin
+            if near:
+                si[k], sb[k] = i, b
+                k += 1
+    return si[:k], sb[:k]
+
+
+@njit(cache=True)
 def _iterate(
     x,
     radii,
@@ -72,57 +168,111 @@ def _iterate(
     gauss_seidel,
     relaxation,
     slop,
+    tolerance,
+    restrict,
 ):  # pragma: no cover - compiled
-    """``iterations`` sweeps over the candidate contacts, moving ``x`` (N, 3) in place."""
+    """Up to ``iterations`` sweeps over the candidate contacts, moving ``x`` (N, 3) in place.
+
+    Stops after the first sweep whose largest correction is at most ``tolerance`` times the
+    smaller radius (a sweep that moves nothing always stops). With ``restrict``, Gauss-Seidel
+    tests a contact only if one of its spheres moved since the contact was last tested
+    (``stamp``: the sweep that last moved a sphere): the others are where the last test left
+    them, resolved to the slop, so skipping them gives the full sweep's result to round-off at a
+    fraction of the cost. Jacobi tests every contact (its averaged corrections depend on every
+    contact's count).
+    Returns the sweeps run and the contact tests made.
+    """
     n = x.shape[0]
     dx = np.zeros((n, 3))
     count = np.zeros(n)
-    zero = np.zeros(n)
-    for _ in range(iterations):
+    stamp = np.zeros(n, np.int64)  # sweep s tests contacts with a sphere stamped >= s - 1
+    skip = gauss_seidel and restrict
+    sweeps = 0
+    tests = 0
+    for s in range(1, iterations + 1):
+        sweeps = s
+        worst = 0.0
         if not gauss_seidel:
             dx[:] = 0.0
             count[:] = 0.0
         for k in range(pi.shape[0]):
             i, j = pi[k], pj[k]
+            if skip and stamp[i] < s - 1 and stamp[j] < s - 1:
+                continue
             wsum = inv_m[i] + inv_m[j]
             if wsum <= 0.0:
                 continue
-            g, n0, n1, n2 = _pair_gap(x, radii, i, j)
-            g -= slop * min(radii[i], radii[j])
-            if g <= 0.0:
+            tests += 1
+            rmin = min(radii[i], radii[j])
+            reach = radii[i] + radii[j] - slop * rmin
+            d0 = x[i, 0] - x[j, 0]
+            d1 = x[i, 1] - x[j, 1]
+            d2 = x[i, 2] - x[j, 2]
+            dd = d0 * d0 + d1 * d1 + d2 * d2
+            if dd >= reach * reach:  # most tests: apart, no square root needed
                 continue
-            si, sj = g * inv_m[i] / wsum, g * inv_m[j] / wsum
-            # Gauss-Seidel moves the spheres at once, Jacobi gathers the corrections
+            dist = np.sqrt(dd)
+            g = reach - dist
+            if dist > 0.0:
+                n0, n1, n2 = d0 / dist, d1 / dist, d2 / dist
+            else:
+                n0, n1, n2 = 0.0, 0.0, 1.0
+            worst = max(worst, g / rmin)
+            # Gauss-Seidel moves the spheres at once (over-relaxed), Jacobi gathers the corrections
             out = x if gauss_seidel else dx
+            f = (relaxation if gauss_seidel else 1.0) * g / wsum
+            si, sj = f * inv_m[i], f * inv_m[j]
             out[i, 0] += si * n0
             out[i, 1] += si * n1
             out[i, 2] += si * n2
             out[j, 0] -= sj * n0
             out[j, 1] -= sj * n1
             out[j, 2] -= sj * n2
-            count[i] += 1.0
-            count[j] += 1.0
+            if gauss_seidel:
+                if inv_m[i] > 0.0:
+                    stamp[i] = s
+                if inv_m[j] > 0.0:
+                    stamp[j] = s
+            else:
+                count[i] += 1.0
+                count[j] += 1.0
         for k in range(bi.shape[0]):
             i, b = bi[k], bb[k]
-            if inv_m[i] <= 0.0:
+            if inv_m[i] <= 0.0 or (skip and stamp[i] < s - 1):
                 continue
-            g, n0, n1, n2 = _body_test(
-                x[i], radii[i], zero[i], kind[b], bpos[b], brot[b], bext[b], bnormal[b]
-            )
+            tests += 1
+            if kind[b] == PLANE:  # inline: the ground and walls, most body contacts
+                n0, n1, n2 = bnormal[b, 0], bnormal[b, 1], bnormal[b, 2]
+                g = radii[i] - (
+                    (x[i, 0] - bpos[b, 0]) * n0
+                    + (x[i, 1] - bpos[b, 1]) * n1
+                    + (x[i, 2] - bpos[b, 2]) * n2
+                )
+            else:
+                g, n0, n1, n2 = _body_test(
+                    x[i], radii[i], 0.0, kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+                )
             if g <= 0.0:
                 continue
+            worst = max(worst, g / radii[i])
             out = x if gauss_seidel else dx
             out[i, 0] += g * n0
             out[i, 1] += g * n1
             out[i, 2] += g * n2
-            count[i] += 1.0
+            if gauss_seidel:
+                stamp[i] = s
+            else:
+                count[i] += 1.0
         if not gauss_seidel:
             for i in range(n):
                 if count[i] > 0.0:
-                    s = relaxation / count[i]
-                    x[i, 0] += s * dx[i, 0]
-                    x[i, 1] += s * dx[i, 1]
-                    x[i, 2] += s * dx[i, 2]
+                    c = relaxation / count[i]
+                    x[i, 0] += c * dx[i, 0]
+                    x[i, 1] += c * dx[i, 1]
+                    x[i, 2] += c * dx[i, 2]
+        if worst <= tolerance:
+            break
+    return sweeps, tests
 
 
 @njit(cache=True)
@@ -181,12 +331,15 @@ def candidate_pairs(x: np.ndarray, radii: np.ndarray, margin: float) -> tuple[np
 @dataclass
 class ProjectionStats:
     """What a projection left: largest pair overlap over the smaller radius, deepest body
-    penetration before the last push-out (m), and the contact counts."""
+    penetration before the last push-out (m), the contact counts, the sweeps run (at most the
+    iterations asked for) and the contact tests they made."""
 
     max_overlap: float
     body_depth: float
     pairs: int
     body_contacts: int
+    sweeps: int = 0
+    tests: int = 0
 
 
 def project(
@@ -199,6 +352,7 @@ def project(
     method: str = "gauss_seidel",
     relaxation: float = 1.0,
     slop: float = 0.0,
+    tolerance: float = 0.0,
     margin: float | None = None,
 ) -> ProjectionStats:
     """Project positions ``x`` (N, 3) m out of overlap in place.
@@ -206,10 +360,15 @@ def project(
     Args:
         radii: (N,) m. inv_mass: (N,) 1/kg; 0 keeps a sphere in place (an obstacle).
         bodies: the planes and boxes to keep the spheres out of.
-        iterations: sweeps over the contacts (>= 0); the final push out of the bodies always runs.
+        iterations: the most sweeps over the contacts (>= 0); the final push out of the bodies
+            always runs.
         method: ``gauss_seidel`` or ``jacobi`` (averaged corrections times ``relaxation``).
+        relaxation: the factor on each correction (Jacobi: on the averaged ones; Gauss-Seidel:
+            on the pair corrections, over-relaxation above 1).
         slop: pair overlap left alone, as a fraction of the smaller radius (>= 0): a bed settled
-            by compliant NDEM contacts holds such overlaps, and undoing them would push it apart.
+            by compliant NDEM contacts holds such overlaps, and undoing it would push it apart.
+        tolerance: the sweeps stop after one whose largest correction is at most this fraction
+            of the smaller radius (>= 0; 0: only once a sweep corrects nothing).
         margin: contact search margin, m (default: half the smallest radius): contacts that
             close during the projection are caught if they start within it.
     """
@@ -217,19 +376,26 @@ def project(
         raise ValueError(f"projection method must be one of {METHODS}, got {method!r}")
     if iterations < 0:
         raise ValueError(f"projection iterations must be >= 0, got {iterations}")
-    x_ = np.ascontiguousarray(x, dtype=np.float64)
-    r = np.ascontiguousarray(radii, dtype=np.float64)
-    w = np.ascontiguousarray(inv_mass, dtype=np.float64)
-    if x_.shape[0] == 0:
+    if tolerance < 0:
+        raise ValueError(f"projection tolerance must be >= 0, got {tolerance}")
+    if x.shape[0] == 0:
         return ProjectionStats(0.0, 0.0, 0, 0)
-    m = 0.5 * float(r.min()) if margin is None else float(margin)
-    pi, pj = candidate_pairs(x_, r, m)
-    movable = np.ascontiguousarray(np.flatnonzero(w > 0.0))
+    r0 = np.asarray(radii, dtype=np.float64)
+    m = 0.5 * float(r0.min()) if margin is None else float(margin)
+    # sorted by cell: the sweeps walk memory forward (spatial order; SPEC §2)
+    x0 = np.asarray(x, dtype=np.float64)
+    lo, cell, dims = broadphase.grid_layout(x0, float(r0.max()) + m, max(8 * x0.shape[0], 4096))
+    perm, _ = broadphase.counting_sort(
+        broadphase.cell_indices(x0, lo, cell, dims), int(np.prod(dims))
+    )
+    x_ = np.ascontiguousarray(x0[perm])
+    r = np.ascontiguousarray(r0[perm])
+    w = np.ascontiguousarray(np.asarray(inv_mass, dtype=np.float64)[perm])
+    pi, pj = _pairs_sorted(x_, r + m, lo, cell, dims)
     body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
     # bodies are few: a whole radius of margin is cheap and catches grains pushed towards them
-    bi, bb, _, _ = body_contacts(x_[movable], r[movable], r[movable] + m, *body_args)
-    bi = movable[bi]
-    _iterate(
+    bi, bb = _body_candidates(x_, r, w, float(r.max()) + m, *body_args)
+    sweeps, tests = _iterate(
         x_,
         r,
         w,
@@ -242,10 +408,13 @@ def project(
         method == "gauss_seidel",
         float(relaxation),
         float(slop),
+        float(tolerance),
+        True,
     )
     # afresh: the pair corrections may have pushed a sphere into a body it was not near before
-    fi, fb, _, _ = body_contacts(x_[movable], r[movable], np.zeros(movable.size), *body_args)
-    depth = _push_out_of_bodies(x_, r, movable[fi], fb, *body_args)
-    if x_ is not x:
-        x[:] = x_
-    return ProjectionStats(float(_largest_overlap(x_, r, pi, pj)), float(depth), pi.size, bi.size)
+    fi, fb = _body_candidates(x_, r, w, 0.0, *body_args)
+    depth = _push_out_of_bodies(x_, r, fi, fb, *body_args)
+    x[perm] = x_
+    return ProjectionStats(
+        float(_largest_overlap(x_, r, pi, pj)), float(depth), pi.size, bi.size, sweeps, tests
+    )

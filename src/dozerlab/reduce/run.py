@@ -53,7 +53,7 @@ def reduce_run(
     solver, material, blade, sampling, reduced). Returns the run's metrics: ``wall_time_s``,
     per-phase ms per step (``ms_<phase>``), the largest overlap after projection over the radius
     (``max_overlap``), the deepest body penetration the projection iterations left before the
-    final push-out (``max_body_depth_m``), the mean count of grains moved per step.
+    final push-out (``max_body_depth_m``), the mean count of grains moved per step and of projection sweeps run per step.
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
     from dozerlab.fields.run import load_inputs, moved_bed, sample_row
@@ -99,7 +99,7 @@ def reduce_run(
     compile_kernels(grid)
     times = PhaseTimes()
     worst_overlap = worst_depth = 0.0
-    active = []
+    active, sweeps = [], []
     start = wallclock.perf_counter()
     with FieldStoreWriter(
         out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(config["sampling"]["chunk_steps"])
@@ -148,6 +148,7 @@ def reduce_run(
             worst_overlap = max(worst_overlap, st.max_overlap)
             worst_depth = max(worst_depth, st.body_depth)
             active.append(state.active)
+            sweeps.append(st.sweeps)
             t0 = wallclock.perf_counter()
             near = state.near(tip)
             vel[k], rho[k] = grid.sample(
@@ -180,6 +181,7 @@ def reduce_run(
         "max_overlap": worst_overlap,
         "max_body_depth_m": worst_depth,
         "active_grains_mean": float(np.mean(active)) if active else 0.0,
+        "projection_sweeps_mean": float(np.mean(sweeps)) if sweeps else 0.0,
         "reduced_steps": float(times.steps),
     }
     metrics |= {f"ms_{k}": v for k, v in times.per_step_ms().items()}
