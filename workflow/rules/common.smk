@@ -101,19 +101,26 @@ def dynamics_input(wildcards):
 
 
 # The schedule on few cores (snakemake's priorities, highest first): every model trains on all
-# the training runs, so those run before the held-out runs, which only the validations and
-# reduced runs need and which fill the cores beside the training. The force U-Net trains
-# longest (BENCHMARKS.md): started first, the shorter trainings fill the other cores.
+# the training runs, so those (and the trajectories they need) run before the held-out runs,
+# which only the validations and reduced runs need and which fill the cores beside the
+# training. The trainings start longest first (BENCHMARKS.md: the force U-Net ≈ 4.5 min, the
+# CNN and MLP ≈ 2, the evolution U-Net ≈ 1.5, the rest under 1), so the short ones fill the
+# cores at the end.
 TRAINING_RUNS = {(p.scenario, P.fmt_number(p.speed), P.fmt_number(p.depth)) for p in P.by_role(POINTS, "train")}
 
 
-def simulate_priority(wildcards):
-    """1 for a training run of the sweep, 0 for any other run."""
+def run_priority(wildcards):
+    """1 for a training run of the sweep (its trajectory and its simulation), 0 for any other."""
     return int((wildcards.scenario, wildcards.speed, wildcards.depth) in TRAINING_RUNS)
 
 
 def train_priority(wildcards):
-    """2 for the force U-Net, 1 for the other models."""
+    """Force models: 4 for the U-Net, 3 for the CNN and the MLP, 1 for the linear model."""
+    return {"unet": 4, "cnn": 3, "mlp": 3}.get(wildcards.model, 1)
+
+
+def train_dynamics_priority(wildcards):
+    """Evolution models: 2 for the U-Net, 1 for the others."""
     return 2 if wildcards.model == "unet" else 1
 
 

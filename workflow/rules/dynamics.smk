@@ -14,7 +14,7 @@ rule train_dynamics:
     resources:
         **cluster.job_resources(config, "train_dynamics"),
     threads: config["threads"]["dynamics"]
-    priority: 1
+    priority: train_dynamics_priority
     params:
         cfg=lambda wc: dynamics_config_json(),
     shell:

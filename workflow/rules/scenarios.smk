@@ -35,6 +35,7 @@ rule trajectory:
     threads: 1
     resources:
         **cluster.job_resources(config, "trajectory"),
+    priority: run_priority
     params:
         cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory", scenario=wc.scenario),
     shell:

@@ -18,7 +18,7 @@ rule simulate:
     threads: config["threads"]["simulate"]
     resources:
         **cluster.job_resources(config, "simulate"),
-    priority: simulate_priority
+    priority: run_priority
     params:
         cfg=lambda wc: config_json(
             "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
