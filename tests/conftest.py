@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from mlflow.tracking import MlflowClient
 
-from dozerlab import tracking
+from dozerlab import spool, tracking
 
 
 @pytest.fixture
@@ -17,4 +17,5 @@ def mlflow_store(tmp_path, monkeypatch) -> MlflowClient:
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     monkeypatch.delenv("DOZERLAB_MLFLOW", raising=False)
     monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
+    monkeypatch.delenv(spool.SPOOL_ENV, raising=False)
     return MlflowClient(tracking_uri=uri)

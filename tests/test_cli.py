@@ -16,6 +16,7 @@ COMMANDS = [
     "config",
     "mlflow-start",
     "mlflow-end",
+    "mlflow-ingest",
     "report",
     "bed",
     "trajectory",

@@ -1,10 +1,10 @@
 """Command-line interface: ``python -m dozerlab <command> …`` (or the ``dozerlab`` script).
 
 Each layer registers its commands from its own ``cli`` module (``dozerlab.<layer>.cli``); the
-commands of no layer (``config``, ``mlflow-start``, ``mlflow-end``) are registered here. Every
-``cli`` module's top level imports only argparse so that ``--help`` is instant; heavy imports
-happen inside the handlers, and a handler's work is a call into its layer (a job in
-``<layer>.jobs`` where it loads, computes, records in MLflow and saves). Every
+commands of no layer (``config``, ``mlflow-start``, ``mlflow-end``, ``mlflow-ingest``) are
+registered here. Every ``cli`` module's top level imports only argparse so that ``--help`` is
+instant; heavy imports happen inside the handlers, and a handler's work is a call into its layer
+(a job in ``<layer>.jobs`` where it loads, computes, records in MLflow and saves). Every
 handler receives the parsed namespace and returns an exit code. Errors the user can fix
 (``ValueError`` and its kin: bad config, bad arguments, diverged runs) print one clear
 message and exit with status 2, without a traceback.
@@ -34,7 +34,7 @@ COMMAND_MODULES = (
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """The commands of no layer: ``config``, ``mlflow-start``, ``mlflow-end``."""
+    """The commands of no layer: ``config``, ``mlflow-start``, ``mlflow-end``, ``mlflow-ingest``."""
     p = sub.add_parser("config", help="validate a config file and print it complete")
     p.add_argument(
         "config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)"
@@ -73,6 +73,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_mlflow_end)
 
+    p = sub.add_parser(
+        "mlflow-ingest",
+        description="log a workflow's spooled job runs (DOZERLAB_MLFLOW_SPOOL) to MLflow",
+    )
+    p.add_argument("run_id", help="the workflow's parent run id")
+    p.add_argument(
+        "--follow", action="store_true", help="go on logging them as jobs end, until SIGTERM"
+    )
+    p.set_defaults(func=_mlflow_ingest)
+
 
 def _config(args: argparse.Namespace) -> int:
     import yaml
@@ -104,6 +114,14 @@ def _mlflow_end(args: argparse.Namespace) -> int:
 
     for path in end_parent_run(args.run_id, args.status, args.artifact):
         print(f"logged {path}", file=sys.stderr)
+    return 0
+
+
+def _mlflow_ingest(args: argparse.Namespace) -> int:
+    from dozerlab.tracking import follow_parent, ingest_finished
+
+    count = follow_parent(args.run_id) if args.follow else ingest_finished(args.run_id)
+    print(f"logged {count} job runs of workflow run {args.run_id}", file=sys.stderr)
     return 0
 
 

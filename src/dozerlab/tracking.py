@@ -33,9 +33,11 @@ import urllib.request
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
+from dozerlab import spool
 from dozerlab.runtime import process_token, workflow_process
+from dozerlab.spool import spool_root, spooled_run
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
 #: ``0`` turns tracking off (``mlflow.enabled: false`` in the workflow).
@@ -154,6 +156,38 @@ def flatten(params: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     return out
 
 
+class JobRun(Protocol):
+    """What a job logs to its run (MLflow's fluent calls, for a live or a spooled run)."""
+
+    def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None: ...
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None: ...
+
+    def log_artifacts(self, directory: str | Path, artifact_path: str | None = None) -> None: ...
+
+
+class LiveRun:
+    """The job's active MLflow run (``info``: MLflow's RunInfo of it)."""
+
+    def __init__(self, run: Any) -> None:
+        self.info = run.info
+
+    def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
+        import mlflow
+
+        mlflow.log_metrics(dict(metrics), step=step)
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        import mlflow
+
+        mlflow.log_artifact(str(path), artifact_path=artifact_path)
+
+    def log_artifacts(self, directory: str | Path, artifact_path: str | None = None) -> None:
+        import mlflow
+
+        mlflow.log_artifacts(str(directory), artifact_path=artifact_path)
+
+
 @contextmanager
 def tracked_run(
     name: str,
@@ -162,30 +196,38 @@ def tracked_run(
     tags: Mapping[str, Any] | None = None,
     params: Mapping[str, Any] | None = None,
     experiment: str = "dozerlab",
-) -> Iterator[Any]:
-    """Open an MLflow run for one job; yields the active run, or None when tracking is off.
+    live: bool = False,
+) -> Iterator[JobRun | None]:
+    """Open an MLflow run for one job; yields it, or None when tracking is off.
 
     The run goes into ``experiment``, or, under a parent run (``DOZERLAB_PARENT_RUN_ID``), into
     the parent's experiment. ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag
     make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
-    flattened. A job that raises leaves its run marked FAILED.
+    flattened. A job that raises leaves its run marked FAILED. Under a workflow with a spool
+    (``DOZERLAB_MLFLOW_SPOOL``, :mod:`dozerlab.spool`) the run is recorded there, without
+    MLflow, unless the job needs MLflow's active run itself (``live``: a model to log).
     """
     if not enabled():
         yield None
         return
-    import mlflow
-
     parent = os.environ.get(PARENT_ENV) or None
-    configure(experiment, parent)
     all_tags = {"rule": rule, **{k: str(v) for k, v in (tags or {}).items()}}
     if os.environ.get("SLURM_JOB_ID"):
         all_tags["slurm_job_id"] = os.environ["SLURM_JOB_ID"]
+    root = spool_root()
+    if parent is not None and root is not None and not live:
+        with spooled_run(root, parent, name, all_tags, flatten(params or {})) as spooled:
+            yield spooled
+        return
+    import mlflow
+
+    configure(experiment, parent)
     with mlflow.start_run(
         run_name=name, parent_run_id=parent, nested=parent is not None, tags=all_tags
     ) as run:
         if params:
             mlflow.log_params(flatten(params))
-        yield run
+        yield LiveRun(run)
 
 
 def job_run(
@@ -195,14 +237,15 @@ def job_run(
     rule: str,
     tags: Mapping[str, Any] | None = None,
     params: Mapping[str, Any] | None = None,
-) -> AbstractContextManager[Any]:
+    live: bool = False,
+) -> AbstractContextManager[JobRun | None]:
     """:func:`tracked_run` as a job's validated ``config`` asks: no run (None) when
     ``mlflow.enabled`` is false, else one in ``mlflow.experiment``. Every job opens its run so."""
     cfg = (config or {}).get("mlflow", {})
     if not cfg.get("enabled", True):
         return nullcontext(None)
     experiment = cfg.get("experiment", "dozerlab")
-    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment)
+    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment, live=live)
 
 
 def close_stale_runs(client: Any, experiment_id: str) -> list[str]:
@@ -252,6 +295,7 @@ def start_parent_run(
         print(
             f"closed parent run {run_id} as KILLED: its snakemake process is gone", file=sys.stderr
         )
+    ingest_ended(client)
     all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
     if (proc := workflow_process()) is not None:
         all_tags |= {HOST_TAG: socket.gethostname(), PID_TAG: str(proc[0]), TOKEN_TAG: proc[1]}
@@ -280,6 +324,10 @@ def end_parent_run(
 
     client = MlflowClient(tracking_uri=os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI))
     started = client.get_run(run_id).info.start_time / 1000.0
+    if (root := spool_root()) is not None:
+        count = spool.ingest(client, root, run_id, with_open=True)
+        print(f"logged {count} job runs of workflow run {run_id}", file=sys.stderr)
+        _remove_if_empty(root / run_id)
     logged = []
     for path in map(Path, artifacts):
         if path.is_file() and path.stat().st_mtime >= started:
@@ -287,3 +335,53 @@ def end_parent_run(
             logged.append(path)
     client.set_terminated(run_id, status=status)
     return logged
+
+
+def _remove_if_empty(folder: Path) -> None:
+    if folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
+
+
+def ingest_ended(client: Any) -> None:
+    """Log the spooled job runs that ended workflows left (their snakemake was killed before
+    ``mlflow-end``): those of parent runs no longer RUNNING in this store."""
+    root = spool_root()
+    if root is None:
+        return
+    from mlflow.exceptions import MlflowException
+
+    for parent in spool.parents(root):
+        try:
+            status = client.get_run(parent).info.status
+        except MlflowException:
+            print(f"spooled runs of {parent}: no such run in this store; left", file=sys.stderr)
+            continue
+        if status != "RUNNING":
+            count = spool.ingest(client, root, parent, with_open=True)
+            print(f"logged {count} job runs that workflow run {parent} left", file=sys.stderr)
+            _remove_if_empty(root / parent)
+
+
+def _spool_client() -> tuple[Path, Any]:
+    """The spool folder and a client of the tracking store (a server is waited for)."""
+    from mlflow import MlflowClient
+
+    root = spool_root()
+    if root is None:
+        raise ValueError(f"{spool.SPOOL_ENV} is not set: no spooled job runs to log")
+    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    wait_for_server(uri, wait_limit())
+    return root, MlflowClient(tracking_uri=uri)
+
+
+def ingest_finished(run_id: str) -> int:
+    """Log the spooled runs of workflow run ``run_id`` whose jobs have ended; return how many."""
+    root, client = _spool_client()
+    return spool.ingest(client, root, run_id, with_open=False)
+
+
+def follow_parent(run_id: str) -> int:
+    """Log the spooled runs of workflow run ``run_id`` as its jobs end, until SIGTERM
+    (``dozerlab mlflow-ingest --follow``, beside the workflow). Returns how many."""
+    root, client = _spool_client()
+    return spool.follow(client, root, run_id)

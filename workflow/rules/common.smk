@@ -8,10 +8,11 @@ import shlex
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-from dozerlab import cluster, runtime, tracking
+from dozerlab import cluster, runtime, spool, tracking
 from dozerlab.config import load_config, schema
 from dozerlab import sweep as P
 
@@ -22,6 +23,9 @@ HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation
 RESULTS = P.RESULTS
 if not config["mlflow"]["enabled"]:
     os.environ[tracking.ENABLED_ENV] = "0"  # the jobs' tracked_run reads this
+# Jobs record their MLflow runs here and one process logs them (dozerlab.spool): a job that
+# imports MLflow and opens its store spends about 3 s on it.
+os.environ.setdefault(spool.SPOOL_ENV, str(Path(".dozerlab", "mlflow-spool").resolve()))
 # The jobs stop when this process is gone (runtime.die_with_workflow): a SIGKILLed Snakemake
 # leaves no orphaned job running. A job run by a remote executor parses this file in its own
 # Snakemake and watches that one.
@@ -188,6 +192,38 @@ def start_parent_run():
     if done.returncode != 0:
         raise WorkflowError(f"dozerlab mlflow-start failed (exit {done.returncode}); see the message above")
     os.environ[tracking.PARENT_ENV] = done.stdout.strip()
+    start_ingest(os.environ[tracking.PARENT_ENV])
+
+
+# `dozerlab mlflow-ingest --follow` beside the jobs, while this invocation runs.
+INGEST = []
+
+
+def start_ingest(run_id):
+    """Log the jobs' spooled runs as they end, in one process beside the workflow; it writes to
+    logs/mlflow-ingest.log and stops with this Snakemake (runtime.die_with_workflow)."""
+    Path("logs").mkdir(exist_ok=True)
+    with open(Path("logs", "mlflow-ingest.log"), "a") as out:
+        INGEST.append(
+            subprocess.Popen(
+                [sys.executable, "-m", "dozerlab", "mlflow-ingest", run_id, "--follow"],
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,  # Ctrl-C reaches Snakemake alone, which stops it below
+            )
+        )
+
+
+def stop_ingest():
+    """Stop the follower after the run it is logging; mlflow-end logs what is left."""
+    for proc in INGEST:
+        proc.terminate()
+        try:
+            proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    INGEST.clear()
 
 
 def end_parent_run(status, log):
@@ -198,6 +234,7 @@ def end_parent_run(status, log):
     run_id = os.environ.get(tracking.PARENT_ENV)
     if not tracking.enabled() or not run_id:
         return
+    stop_ingest()
     logs = [log] if isinstance(log, (str, os.PathLike)) else list(log or [])
     artifacts = [P.pattern("report")] + [str(p) for p in logs]
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]

@@ -12,7 +12,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from dozerlab import __version__
+from dozerlab import __version__, tracking
 from dozerlab.fields.run import drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FIELD_STORE, open_store
@@ -46,7 +46,6 @@ def simulate(
     loop's wall time (s). Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store.
     """
-    from dozerlab import tracking
     from dozerlab.scenarios.bed import BED_FILE
 
     check_output(out, FIELD_STORE)  # before the run, not after it
@@ -88,18 +87,16 @@ def simulate(
 
 
 def _plots_and_metrics(
-    out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: Any
+    out: Path, plots_dir: str | Path | None, metrics: dict[str, float], run: tracking.JobRun | None
 ) -> None:
     """Log the metrics to the MLflow ``run``; with ``plots_dir``, plot the store there and log
     the plots too. Plots are drawn only on request: the report draws its own from the store."""
     if run is not None:
-        import mlflow
-
-        mlflow.log_metrics(metrics)
+        run.log_metrics(metrics)
     if plots_dir is None:
         return
     from dozerlab.fields.plots import plot_run
 
     plot_run(open_store(out), Path(plots_dir), animation=False)
     if run is not None:
-        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")
+        run.log_artifacts(plots_dir, artifact_path="plots")

@@ -19,6 +19,7 @@ from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import EpochCallback, TrainResult, train_model
 from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
 from dozerlab.runtime import OutputKind, atomic_output, check_output, json_with
+from dozerlab.tracking import JobRun
 
 #: What ``validate`` writes beside its plots: the metrics JSON.
 VALIDATION_JSON = OutputKind(
@@ -47,15 +48,14 @@ def result_meta(result: TrainResult) -> dict[str, Any]:
     }
 
 
-def epoch_logger(run: Any, val_name: str) -> EpochCallback | None:
+def epoch_logger(run: JobRun | None, val_name: str) -> EpochCallback | None:
     """An ``on_epoch`` callback logging ``train_loss`` and ``val_name`` to the active MLflow
     run (None without a run)."""
     if run is None:
         return None
-    import mlflow
 
     def log_epoch(epoch: int, tr: float, va: float) -> None:
-        mlflow.log_metrics({"train_loss": tr, val_name: va}, step=epoch)
+        run.log_metrics({"train_loss": tr, val_name: va}, step=epoch)
 
     return log_epoch
 
@@ -119,8 +119,6 @@ def train_job(
     """Train model ``kind`` of ``family`` on the stores ``train``; save the MLflow model
     directory at ``out`` and log the run (params, per-epoch losses, final training metrics,
     loss plot, model)."""
-    import mlflow
-
     check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
     check_grid(stores)  # counts and sizes of the bins agree
@@ -131,7 +129,7 @@ def train_job(
     params["train_stores"] = ",".join(str(p) for p in train)
     name = f"{family.title}{kind}"
     with tracking.job_run(
-        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params
+        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params, live=True
     ) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
@@ -143,7 +141,7 @@ def train_job(
         with atomic_output(out, pyfunc.MODEL_DIR) as tmp:
             family.pyfunc.save(model, meta, tmp, example)
         if run is not None:
-            mlflow.log_metrics(
+            run.log_metrics(
                 {
                     **family.fit_metrics(model, stores),
                     f"best_{family.val_metric}": min(result.val_loss),
@@ -153,7 +151,7 @@ def train_job(
             )
             with tempfile.TemporaryDirectory() as d:
                 png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
-                mlflow.log_artifact(str(png))
+                run.log_artifact(png)
             result.model_uri = family.pyfunc.log(model, meta, example).model_uri
     return result
 
@@ -170,7 +168,7 @@ def held_out_params(
 
 
 def record_validation(
-    run: Any,
+    run: JobRun | None,
     result: dict[str, Any],
     out: Path,
     kind: OutputKind,
@@ -182,11 +180,9 @@ def record_validation(
     with atomic_output(out, kind) as tmp:
         tmp.write_text(json.dumps(result, indent=1))
     if run is not None:
-        import mlflow
-
-        mlflow.log_metrics(metrics)
-        mlflow.log_artifact(str(out))
-        mlflow.log_artifacts(str(plots_dir), artifact_path="plots")
+        run.log_metrics(metrics)
+        run.log_artifact(out)
+        run.log_artifacts(plots_dir, artifact_path="plots")
 
 
 def validate_job(

@@ -16,20 +16,17 @@ and ``artifacts/meta.json`` (architecture, grid, training points, loss history).
 
 from __future__ import annotations
 
-import contextlib
+import functools
 import json
 import tempfile
-import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import mlflow
 import numpy as np
 import pandas as pd
 import torch
-from mlflow.pyfunc.model import PythonModel
 
 from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.models import ForceModel
@@ -109,42 +106,6 @@ def predict_arrays(
         for i in range(0, v.shape[0], batch)
     ]
     return torch.cat(out).numpy() if out else np.zeros((0, 6), np.float32)
-
-
-# No type hints on predict: MLflow would read them as a competing input schema (the signature
-# already states it). It warns about their absence when the class is defined, in every job and
-# script that loads a model, under a filter of its own, so the warning is caught, not filtered.
-@contextlib.contextmanager
-def untyped_predict() -> Iterator[None]:
-    """Define a PythonModel with an untyped ``predict`` inside: MLflow's request for type hints
-    is dropped, every other warning passes."""
-    with warnings.catch_warnings(record=True) as caught:
-        yield
-    for w in caught:
-        if "Add type hints to the `predict` method" not in str(w.message):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-
-
-with untyped_predict():
-
-    class BuiltModel(PythonModel):
-        """A pyfunc model that rebuilds ``self.model`` from its directory's artifacts with the
-        subclass's ``build(meta, weights)`` (a staticmethod); the subclass defines ``predict``."""
-
-        build: Callable[[dict[str, Any], str | Path], Any]
-
-        def load_context(self, context: Any) -> None:
-            meta = json.loads(Path(context.artifacts["meta"]).read_text())
-            self.model = self.build(meta, context.artifacts["weights"])
-
-    class ForcePyfunc(BuiltModel):
-        """MLflow pyfunc wrapper around a :class:`ForceModel`."""
-
-        build = staticmethod(build)
-
-        def predict(self, context, model_input, params=None):
-            """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step input arrays."""
-            return pd.DataFrame(predict_arrays(self.model, model_input), columns=list(TARGET_NAMES))
 
 
 def signature(grid: tuple[int, int, int]) -> Any:
@@ -236,11 +197,15 @@ class PyfuncFormat:
     ) -> None:
         """Save ``model`` as an MLflow pyfunc directory at ``path`` (which must not exist);
         ``arrays`` are per-row store arrays for the input example."""
+        import mlflow.pyfunc
+
         with tempfile.TemporaryDirectory() as tmp:
             mlflow.pyfunc.save_model(path=str(path), **self.kwargs(model, meta, Path(tmp), arrays))
 
     def log(self, model: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
         """Log ``model`` to the active MLflow run as the model named ``model``."""
+        import mlflow.pyfunc
+
         with tempfile.TemporaryDirectory() as tmp:
             return mlflow.pyfunc.log_model(
                 name="model", **self.kwargs(model, meta, Path(tmp), arrays)
@@ -259,3 +224,30 @@ FORMAT = PyfuncFormat(
     "dozerlab model", Path(__file__).with_name("pyfunc_entry.py"), build, model_extras
 )
 save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
+
+
+@functools.cache
+def _force_pyfunc() -> type:
+    from dozerlab.learn.pyfunc_model import BuiltModel, untyped_predict
+
+    with untyped_predict():
+
+        class ForcePyfunc(BuiltModel):
+            """MLflow pyfunc wrapper around a :class:`ForceModel`."""
+
+            build = staticmethod(build)
+
+            def predict(self, context, model_input, params=None):
+                """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step arrays."""
+                out = predict_arrays(self.model, model_input)
+                return pd.DataFrame(out, columns=list(TARGET_NAMES))
+
+    return ForcePyfunc
+
+
+def __getattr__(name: str) -> Any:
+    # ``ForcePyfunc`` (what pyfunc_entry.py sets) is defined on first use: defining a PythonModel
+    # imports MLflow, which the jobs that read models directly never need.
+    if name == "ForcePyfunc":
+        return _force_pyfunc()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -86,9 +86,7 @@ def reduce_job(
             depth=depth,
         )
         if run is not None:
-            import mlflow
-
-            mlflow.log_metrics(metrics)
+            run.log_metrics(metrics)
     return metrics
 
 
@@ -186,10 +184,8 @@ def compare_job(
         with atomic_output(out, COMPARISON_JSON) as tmp:
             Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True))
         if run is not None:
-            import mlflow
-
             for role, agg in summary["overall"].items():
-                mlflow.log_metrics({f"{role}.{k}": v for k, v in agg.items()})
-            mlflow.log_artifacts(str(plots), artifact_path="plots")
-            mlflow.log_artifact(str(out))
+                run.log_metrics({f"{role}.{k}": v for k, v in agg.items()})
+            run.log_artifacts(plots, artifact_path="plots")
+            run.log_artifact(out)
     return summary

@@ -14,14 +14,15 @@ read the last ``learn.history`` rows of fields.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 
+from dozerlab.learn.dynamics.pyfunc import FORMAT as DYNAMICS_FORMAT
 from dozerlab.learn.dynamics.pyfunc import predict_arrays
+from dozerlab.learn.pyfunc import FORMAT as FORCE_FORMAT
 from dozerlab.learn.pyfunc import check_inputs, with_history
 from dozerlab.runtime import DozerlabError
 
@@ -48,25 +49,19 @@ class FieldModel(Protocol):
 
 
 class PyfuncFieldModel:
-    """A field-evolution model loaded from an MLflow pyfunc directory."""
+    """A field-evolution model of an MLflow pyfunc directory, read directly (``FORMAT.load``):
+    the loop calls the network itself, without MLflow's per-call input handling (it cost as
+    much as the network on the quick sweep's grid, BENCHMARKS.md "Reduced simulation") or the
+    1–2 s of importing MLflow."""
 
     def __init__(self, path: str | Path, grid: tuple[int, int, int]) -> None:
-        import mlflow
-
         path = Path(path)
         if not (path / "MLmodel").is_file():
             raise DozerlabError(f"not an MLflow model directory (no MLmodel): {path}")
-        self.model = mlflow.pyfunc.load_model(str(path))
-        # The loop calls the network itself: MLflow's per-call input handling cost as much as
-        # the network on the quick sweep's grid (BENCHMARKS.md, "Reduced simulation").
-        self.module = self.model.unwrap_python_model().model
-        meta = self.model.metadata.metadata or {}
-        missing = [k for k in ("history", "horizon") if k not in meta]
-        if missing:
-            raise DozerlabError(f"{path}: the model's MLflow metadata lacks {missing}")
+        self.module, _meta = DYNAMICS_FORMAT.load(path)
         self.name = path.name
-        self.history = int(meta["history"])
-        self.horizon = int(meta["horizon"])
+        self.history = int(self.module.history)
+        self.horizon = int(self.module.horizon)
         self.grid = grid
 
     def predict(
@@ -116,21 +111,16 @@ class ReplayFieldModel:
 
 
 class ForcePredictor:
-    """A trained force model (``results/models/{model}/``) through its MLflow pyfunc.
+    """A trained force model (``results/models/{model}/``), read directly from its MLflow
+    pyfunc directory (``FORMAT.load``, as :class:`PyfuncFieldModel`).
 
     Attributes: ``history`` (rows of fields it reads), ``name``.
     """
 
     def __init__(self, path: str | Path) -> None:
-        import mlflow
-
         path = Path(path)
-        meta_path = path / "artifacts" / "meta.json"
-        if not meta_path.is_file():
-            raise DozerlabError(f"not a dozerlab force model directory (no {meta_path})")
-        self.history = int(json.loads(meta_path.read_text()).get("history", 1))
-        self.model = mlflow.pyfunc.load_model(str(path))
-        self.module = self.model.unwrap_python_model().model
+        self.module, _meta = FORCE_FORMAT.load(path)
+        self.history = int(self.module.history)
         self.name = path.name
 
     def predict(

@@ -40,9 +40,7 @@ def bed_job(
         if plot:
             plot_bed(bed, plot)
         if run is not None:
-            import mlflow
-
-            mlflow.log_metrics(
+            run.log_metrics(
                 {
                     "particle_count": bed.count,
                     "settle_time": bed.info["time"],
@@ -52,7 +50,7 @@ def bed_job(
                 }
             )
             if plot:
-                mlflow.log_artifact(str(plot))
+                run.log_artifact(plot)
     return bed
 
 

@@ -16,6 +16,7 @@ known rows and the m rows to predict. Normalisation is inside the model. The dir
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -23,13 +24,7 @@ import numpy as np
 import torch
 
 from dozerlab.learn.dynamics.models import DynamicsModel
-from dozerlab.learn.pyfunc import (
-    INPUT_NAMES,
-    BuiltModel,
-    PyfuncFormat,
-    require_inputs,
-    untyped_predict,
-)
+from dozerlab.learn.pyfunc import INPUT_NAMES, PyfuncFormat, require_inputs
 from dozerlab.runtime import DozerlabError
 
 OUTPUT_NAMES = ("velocity", "density")
@@ -73,18 +68,6 @@ def predict_arrays(model: DynamicsModel, arrays: Any, batch: int = 64) -> dict[s
     return {
         name: torch.cat([o[i] for o in outs]).cpu().numpy() for i, name in enumerate(OUTPUT_NAMES)
     }
-
-
-with untyped_predict():
-
-    class DynamicsPyfunc(BuiltModel):
-        """MLflow pyfunc wrapper around a :class:`DynamicsModel`."""
-
-        build = staticmethod(build)
-
-        def predict(self, context, model_input, params=None):
-            """The contract's output dict of the contract's input dict."""
-            return predict_arrays(self.model, model_input)
 
 
 def signature(model: DynamicsModel) -> Any:
@@ -139,3 +122,28 @@ FORMAT = PyfuncFormat(
     _check,
 )
 save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
+
+
+@functools.cache
+def _dynamics_pyfunc() -> type:
+    from dozerlab.learn.pyfunc_model import BuiltModel, untyped_predict
+
+    with untyped_predict():
+
+        class DynamicsPyfunc(BuiltModel):
+            """MLflow pyfunc wrapper around a :class:`DynamicsModel`."""
+
+            build = staticmethod(build)
+
+            def predict(self, context, model_input, params=None):
+                """The contract's output dict of the contract's input dict."""
+                return predict_arrays(self.model, model_input)
+
+    return DynamicsPyfunc
+
+
+def __getattr__(name: str) -> Any:
+    # ``DynamicsPyfunc`` (what pyfunc_entry.py sets) is defined on first use, as ``ForcePyfunc``.
+    if name == "DynamicsPyfunc":
+        return _dynamics_pyfunc()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,217 @@
+"""Job runs recorded on disk under a workflow, logged to MLflow by one process.
+
+Importing MLflow and opening its store cost a job about 3 s (1–2 s of imports, 0.6–0.9 s for
+the SQLite store's schema check, the rest in ``start_run``): more than a quick-config simulation
+steps, and some 4 core-minutes of the default sweep's 80 jobs (BENCHMARKS.md). So a job of a
+workflow that records its run here — the Snakefile sets ``DOZERLAB_MLFLOW_SPOOL`` next to the
+parent run's ``DOZERLAB_PARENT_RUN_ID`` — writes it as a folder, without importing MLflow::
+
+    <spool>/<parent run id>/<record>/run.json        name, tags, params, metrics, times, status
+    <spool>/<parent run id>/<record>/artifacts/...   copies of the files the job logged
+
+A job's folder is ``.open-<record>`` while it runs and ``<record>`` once its status is known.
+One process logs the finished ones as MLflow child runs of the parent, with the job's own start
+and end times, and then removes them: ``dozerlab mlflow-ingest RUN_ID --follow`` runs beside the
+workflow (the runs show in ``mlflow ui`` a second or two after their jobs end), and
+``mlflow-end`` logs what is left when the workflow ends, an open record as a KILLED run (its job
+was killed outright). A record is removed only after its run is complete in MLflow, and a run
+half-logged by an ingestion that was cut off is replaced (each run carries its record's name as
+the ``dozerlab.record`` tag): nothing is lost or logged twice. ``mlflow-start`` logs the records
+that a killed workflow left.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+#: The spool folder; set by the workflow, with ``DOZERLAB_PARENT_RUN_ID``.
+SPOOL_ENV = "DOZERLAB_MLFLOW_SPOOL"
+RECORD_TAG = "dozerlab.record"
+OPEN_PREFIX = ".open-"
+RUN_FILE = "run.json"
+#: MLflow's limits on one ``log_batch`` call.
+PARAMS_PER_BATCH, METRICS_PER_BATCH = 100, 1000
+
+
+def spool_root() -> Path | None:
+    """The spool folder named by ``DOZERLAB_MLFLOW_SPOOL``, or None when jobs log directly."""
+    raw = os.environ.get(SPOOL_ENV, "")
+    return Path(raw) if raw else None
+
+
+def _now_ms() -> int:
+    return int(time.time() * 1000)
+
+
+def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
+    """Replace ``path`` with ``doc`` at once (a reader sees the old or the new file, never half)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc))
+    os.replace(tmp, path)
+
+
+class SpooledRun:
+    """One job's run, recorded in its spool folder; the methods match MLflow's fluent API."""
+
+    def __init__(self, folder: Path, doc: dict[str, Any]) -> None:
+        self.folder = folder
+        self.doc = doc
+
+    def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
+        """Record ``metrics`` (at ``step``, default 0) with the time of the call."""
+        stamp = _now_ms()
+        self.doc["metrics"].extend([k, float(v), stamp, int(step or 0)] for k, v in metrics.items())
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        """Record the file at ``path`` (under ``artifact_path`` in the run's artifacts)."""
+        dest = self.folder / "artifacts" / (artifact_path or "")
+        dest.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(path, dest / Path(path).name)
+
+    def log_artifacts(self, directory: str | Path, artifact_path: str | None = None) -> None:
+        """Record every file under ``directory`` (under ``artifact_path``), as it lies there."""
+        dest = self.folder / "artifacts" / (artifact_path or "")
+        shutil.copytree(directory, dest, dirs_exist_ok=True)
+
+    def save(self) -> None:
+        _write_json(self.folder / RUN_FILE, self.doc)
+
+
+@contextmanager
+def spooled_run(
+    root: Path,
+    parent: str,
+    name: str,
+    tags: Mapping[str, str],
+    params: Mapping[str, str],
+) -> Iterator[SpooledRun]:
+    """Record one job's run under ``root/parent``; a job that raises records FAILED."""
+    record = f"{time.time_ns():020d}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    folder = root / parent / (OPEN_PREFIX + record)
+    folder.mkdir(parents=True)
+    command = " ".join(["dozerlab", *sys.argv[1:2]])
+    doc: dict[str, Any] = {
+        "record": record,
+        "name": name,
+        "tags": {"mlflow.source.name": command, "mlflow.source.type": "LOCAL", **tags},
+        "params": dict(params),
+        "metrics": [],
+        "start_time": _now_ms(),
+        "end_time": None,
+        "status": "RUNNING",
+    }
+    run = SpooledRun(folder, doc)
+    run.save()  # a job killed outright leaves this: logged KILLED, with its params
+    status = "FAILED"
+    try:
+        yield run
+        status = "FINISHED"
+    finally:
+        doc["status"], doc["end_time"] = status, _now_ms()
+        run.save()
+        os.rename(folder, folder.with_name(record))
+
+
+def pending(root: Path, parent: str, *, with_open: bool) -> list[Path]:
+    """The record folders of ``parent`` under ``root`` in the order their jobs began; the open
+    ones (jobs still running, or killed) only ``with_open``."""
+    base = root / parent
+    if not base.is_dir():
+        return []
+    found = [
+        d
+        for d in base.iterdir()
+        if d.is_dir()
+        and (d / RUN_FILE).is_file()
+        and (with_open or not d.name.startswith(OPEN_PREFIX))
+    ]
+    return sorted(found, key=lambda d: d.name.removeprefix(OPEN_PREFIX))
+
+
+def _load(folder: Path) -> dict[str, Any]:
+    """A record's run.json, refused by name when it is not one."""
+    try:
+        doc = json.loads((folder / RUN_FILE).read_text())
+        missing = {"record", "name", "tags", "params", "metrics", "start_time", "status"} - set(doc)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"damaged MLflow spool record {folder}: {exc}") from exc
+    if missing:
+        raise ValueError(f"damaged MLflow spool record {folder}: no {sorted(missing)}")
+    return dict(doc)
+
+
+def log_record(client: Any, experiment_id: str, parent: str, folder: Path) -> str:
+    """Log the record in ``folder`` as a child run of ``parent``; return the run id.
+
+    A record still open is logged KILLED, ending when it was last written. A run of the same
+    record left by an ingestion that was cut off is deleted first."""
+    from mlflow.entities import Metric, Param
+    from mlflow.tracking.context.registry import resolve_tags
+
+    doc = _load(folder)
+    status, end = doc["status"], doc["end_time"]
+    if status == "RUNNING":
+        status, end = "KILLED", int((folder / RUN_FILE).stat().st_mtime * 1000)
+    query = f"tags.`{RECORD_TAG}` = '{doc['record']}'"
+    for old in client.search_runs([experiment_id], filter_string=query, max_results=10):
+        client.delete_run(old.info.run_id)
+    tags = resolve_tags({**doc["tags"], "mlflow.parentRunId": parent, RECORD_TAG: doc["record"]})
+    run_id: str = client.create_run(
+        experiment_id, start_time=doc["start_time"], tags=tags, run_name=doc["name"]
+    ).info.run_id
+    params = [Param(k, v) for k, v in doc["params"].items()]
+    for i in range(0, len(params), PARAMS_PER_BATCH):
+        client.log_batch(run_id, params=params[i : i + PARAMS_PER_BATCH])
+    metrics = [Metric(k, v, stamp, step) for k, v, stamp, step in doc["metrics"]]
+    for i in range(0, len(metrics), METRICS_PER_BATCH):
+        client.log_batch(run_id, metrics=metrics[i : i + METRICS_PER_BATCH])
+    if (folder / "artifacts").is_dir():
+        client.log_artifacts(run_id, str(folder / "artifacts"))
+    client.set_terminated(run_id, status=status, end_time=end)
+    return run_id
+
+
+def ingest(client: Any, root: Path, parent: str, *, with_open: bool) -> int:
+    """Log and remove the records of ``parent`` (see :func:`pending`); return how many."""
+    folders = pending(root, parent, with_open=with_open)
+    for folder in folders:
+        _log_and_remove(client, parent, folder)
+    return len(folders)
+
+
+def _log_and_remove(client: Any, parent: str, folder: Path) -> None:
+    log_record(client, client.get_run(parent).info.experiment_id, parent, folder)
+    shutil.rmtree(folder)
+
+
+def parents(root: Path) -> list[str]:
+    """The parent run ids with records under ``root``."""
+    return sorted(d.name for d in root.iterdir() if d.is_dir()) if root.is_dir() else []
+
+
+def follow(client: Any, root: Path, parent: str, poll_s: float = 1.0) -> int:
+    """Log ``parent``'s records as their jobs finish, until SIGTERM or SIGINT; the record being
+    logged then is completed first. Returns how many were logged."""
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda signum, frame: stop.set())
+    count = 0
+    while not stop.is_set():
+        for folder in pending(root, parent, with_open=False):
+            if stop.is_set():
+                break
+            _log_and_remove(client, parent, folder)
+            count += 1
+        stop.wait(poll_s)
+    return count
