@@ -10,7 +10,8 @@ points their outputs into a temporary folder and runs each ``--repeat`` times, a
 spool (``DOZERLAB_MLFLOW_SPOOL`` and a parent run id: the run is written to disk, no MLflow) and
 without (the job imports MLflow, opens a temporary SQLite store and logs there). It prints each
 job's wall time per mode and, for simulate, the overhead: the wall time less the stepping loop
-(the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures.
+(the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures. With ``PYTHONPATH=OLD/src``
+and ``--modes live`` it measures an older checkout's jobs the same way.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ def command(workdir: Path, configfile: str, rule: str) -> list[str]:
         capture_output=True,
         text=True,
         check=True,
+        env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},  # for the jobs alone
     )
     marker = f"dozerlab {rule.replace('_', '-')} "
     for line in (done.stdout + done.stderr).splitlines():
@@ -96,15 +98,23 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, required=True)
     ap.add_argument("--configfile", default="config/quick.yaml")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--modes",
+        nargs="+",
+        choices=("spool", "live"),
+        default=["spool", "live"],
+        help="live alone for a checkout from before the spool (PYTHONPATH=OLD/src)",
+    )
     args = ap.parse_args()
     base = {k: v for k, v in os.environ.items() if not k.startswith(("DOZERLAB_", "MLFLOW_"))}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d) / "out"
         tmp.mkdir()
-        modes = {
+        every = {
             "spool": {"DOZERLAB_PARENT_RUN_ID": "0" * 32, "DOZERLAB_MLFLOW_SPOOL": f"{d}/spool"},
             "live": {"MLFLOW_TRACKING_URI": f"sqlite:///{d}/mlflow.db"},
         }
+        modes = {m: every[m] for m in args.modes}
         for rule in RULES:
             cmd, env = retarget(command(args.workdir, args.configfile, rule), tmp)
             walls: dict[str, list[float]] = {m: [] for m in modes}
