@@ -111,15 +111,18 @@ def test_an_ingestion_cut_off_midway_is_redone_not_doubled(workflow):
     assert len(found) == 1 and found[0].data.metrics == {"count": 3.0}
 
 
-def test_a_damaged_record_is_refused_by_name_and_kept(workflow):
+def test_a_damaged_record_is_refused_by_name_and_kept_the_others_logged(workflow):
     client, parent, root = workflow
-    with tracking.tracked_run("bed hill", rule="bed"):
-        pass
-    (folder,) = spool.pending(root, parent, with_open=False)
+    for name in ("bed hill", "bed step"):
+        with tracking.tracked_run(name, rule="bed"):
+            pass
+    folder = spool.pending(root, parent, with_open=False)[0]
     (folder / spool.RUN_FILE).write_text('{"record": "x"')
-    with pytest.raises(ValueError, match=f"damaged MLflow spool record {folder}"):
+    with pytest.raises(
+        ValueError, match=f"logged 1 job runs; left damaged MLflow spool record {folder}"
+    ):
         spool.ingest(client, root, parent, with_open=False)
-    assert folder.is_dir() and children(client, parent) == {}
+    assert folder.is_dir() and list(children(client, parent)) == ["bed step"]
 
 
 def test_the_follower_logs_runs_as_jobs_end_and_stops_on_sigterm(workflow, tmp_path):

@@ -183,11 +183,20 @@ def log_record(client: Any, experiment_id: str, parent: str, folder: Path) -> st
 
 
 def ingest(client: Any, root: Path, parent: str, *, with_open: bool) -> int:
-    """Log and remove the records of ``parent`` (see :func:`pending`); return how many."""
-    folders = pending(root, parent, with_open=with_open)
-    for folder in folders:
-        _log_and_remove(client, parent, folder)
-    return len(folders)
+    """Log and remove the records of ``parent`` (see :func:`pending`); return how many.
+
+    A damaged record is left where it is and named, after the others are logged."""
+    damaged = []
+    count = 0
+    for folder in pending(root, parent, with_open=with_open):
+        try:
+            _log_and_remove(client, parent, folder)
+            count += 1
+        except ValueError as exc:
+            damaged.append(str(exc))
+    if damaged:
+        raise ValueError(f"logged {count} job runs; left " + "; ".join(damaged))
+    return count
 
 
 def _log_and_remove(client: Any, parent: str, folder: Path) -> None:
@@ -207,11 +216,18 @@ def follow(client: Any, root: Path, parent: str, poll_s: float = 1.0) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda signum, frame: stop.set())
     count = 0
+    damaged: set[Path] = set()  # named once, left for mlflow-end to name again
     while not stop.is_set():
         for folder in pending(root, parent, with_open=False):
             if stop.is_set():
                 break
-            _log_and_remove(client, parent, folder)
-            count += 1
+            if folder in damaged:
+                continue
+            try:
+                _log_and_remove(client, parent, folder)
+                count += 1
+            except ValueError as exc:
+                damaged.add(folder)
+                print(exc, file=sys.stderr, flush=True)
         stop.wait(poll_s)
     return count
