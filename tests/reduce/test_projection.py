@@ -154,3 +154,17 @@ def test_pairs_sorted_finds_every_pair_within_reach():
     pa, pb = projection._pairs_sorted(np.ascontiguousarray(x[perm]), reach[perm], lo, 0.11, dims)
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_contact_closed_beyond_the_margin_is_found_and_resolved(method):
+    # B is pushed 1.75 radii by the obstacle A into C, which began beyond the contact list's
+    # reach (r_B + r_C + 2·margin = 0.06 m): a fresh search finds it and a second round separates
+    x = np.array([[0.0, 0.0, 0.5], [0.005, 0.0, 0.5], [0.067, 0.0, 0.5]])
+    r = np.full(3, 0.02)
+    stats = project(
+        x, r, np.array([0.0, 1.0, 1.0]), bodies(box=False), iterations=50, method=method
+    )
+    gaps = [np.linalg.norm(x[1] - x[0]) - 0.04, np.linalg.norm(x[2] - x[1]) - 0.04]
+    assert min(gaps) > -1e-3 * 0.02
+    assert stats.max_overlap == pytest.approx(max(0.0, -min(gaps) / 0.02), abs=1e-9)

@@ -183,6 +183,7 @@ def reduce_run(
         "active_grains_mean": float(np.mean(active)) if active else 0.0,
         "projection_sweeps_mean": float(np.mean(sweeps)) if sweeps else 0.0,
         "reduced_steps": float(times.steps),
+        "beyond_ring_steps": float(state.beyond_ring),
     }
     metrics |= {f"ms_{k}": v for k, v in times.per_step_ms().items()}
     log.info("reduce done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
