@@ -129,7 +129,7 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     perm, lo, dims = cell_sorted(x, 0.2)
     x, r, w = np.ascontiguousarray(x[perm]), r[perm], w[perm]
     b = bodies()
-    pi, pj = projection._pairs_sorted(x, r + 0.02, lo, 0.2, dims)
+    pi, pj = projection._pairs_sorted(x, r + 0.02, w, lo, 0.2, dims)
     bi, bb = projection._body_candidates(
         x, r, w, 0.1, b.kind, b.centre, b.rotation, b.half, b.normal
     )
@@ -143,15 +143,20 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     assert tests_r < 0.8 * tests_full
 
 
-def test_pairs_sorted_finds_every_pair_within_reach():
+def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles():
     x, r, _ = pile(150, seed=7)
+    w = np.where(np.arange(150) % 3 == 0, 0.0, 1.0)  # a third are obstacles
     reach = r + 0.01
     d = np.linalg.norm(x[:, None] - x[None], axis=2)
     want = {
-        (a, b) for a, b in zip(*np.nonzero(d < reach[:, None] + reach[None]), strict=True) if a < b
+        (a, b)
+        for a, b in zip(*np.nonzero(d < reach[:, None] + reach[None]), strict=True)
+        if a < b and (w[a] > 0 or w[b] > 0)
     }
     perm, lo, dims = cell_sorted(x, 0.11)  # cells >= the largest reach sum
-    pa, pb = projection._pairs_sorted(np.ascontiguousarray(x[perm]), reach[perm], lo, 0.11, dims)
+    pa, pb = projection._pairs_sorted(
+        np.ascontiguousarray(x[perm]), reach[perm], w[perm], lo, 0.11, dims
+    )
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
 

@@ -59,8 +59,9 @@ def _pair_gap(x, radii, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
-    """Count the pairs (a, b), a < b, closer than reach_a + reach_b; write the first pa.size.
+def _scan_pairs(x, reach, inv_m, start, dims, pa, pb):  # pragma: no cover - compiled
+    """Count the pairs (a, b), a < b, closer than reach_a + reach_b and not both obstacles
+    (``inv_m`` 0: the projection leaves such a pair alone); write the first pa.size.
 
     Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
     slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself).
@@ -83,6 +84,8 @@ def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
                             for a in range(start[c], start[c + 1]):
                                 xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
                                 for b in range(max(start[q], a + 1), start[q + 1]):
+                                    if inv_m[a] <= 0.0 and inv_m[b] <= 0.0:
+                                        continue
                                     d0 = xa0 - x[b, 0]
                                     d1 = xa1 - x[b, 1]
                                     d2 = xa2 - x[b, 2]
@@ -95,8 +98,9 @@ def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
-    """Pairs (a, b), a < b, of spheres closer than reach_a + reach_b (m), in one serial pass.
+def _pairs_sorted(x, reach, inv_m, lo, cell, dims):  # pragma: no cover - compiled
+    """Pairs (a, b), a < b, of spheres closer than reach_a + reach_b (m), not both obstacles
+    (``inv_m`` (N,) 0), in one serial pass.
 
     ``x`` (N, 3) is sorted by cell (x-major) on the grid (lo, cell, dims), so the pairs come out
     in memory order and a Gauss-Seidel sweep over them walks the arrays forward.
@@ -109,10 +113,10 @@ def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
         start[c + 1] += start[c]
     pa = np.empty(8 * x.shape[0] + 16, np.int64)
     pb = np.empty_like(pa)
-    k = _scan_pairs(x, reach, start, dims, pa, pb)
+    k = _scan_pairs(x, reach, inv_m, start, dims, pa, pb)
     if k > pa.size:  # a packing denser than 16 candidates a sphere (overlapping grains): again
         pa, pb = np.empty(k, np.int64), np.empty(k, np.int64)
-        _scan_pairs(x, reach, start, dims, pa, pb)
+        _scan_pairs(x, reach, inv_m, start, dims, pa, pb)
     return pa[:k], pb[:k]
 
 
@@ -453,7 +457,7 @@ def _round(
     x_ = np.ascontiguousarray(x0[perm])
     r = np.ascontiguousarray(r0[perm])
     w = np.ascontiguousarray(w0[perm])
-    pi, pj = _pairs_sorted(x_, r + m, lo, cell, dims)
+    pi, pj = _pairs_sorted(x_, r + m, w, lo, cell, dims)
     # bodies are few: a whole radius of margin is cheap and catches grains pushed towards them
     bi, bb = _body_candidates(x_, r, w, float(r.max()) + m, *body_args)
     sweeps, tests = _iterate(

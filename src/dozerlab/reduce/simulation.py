@@ -131,8 +131,10 @@ def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # 
     inside = np.empty(n, np.bool_)
     near = np.empty(n, np.bool_)
     cells = np.empty((n, 3), np.int64)
-    # 2: a mover's cell or its neighbour (movable grains); 1: their neighbours (obstacles)
+    # 3: a mover's cell; 2: its neighbour (movable grains); 1: their neighbours (obstacles)
     marks = np.zeros((dims[0], dims[1], dims[2]), np.int8)
+    sources = np.empty((n, 3), np.int64)  # the movers' cells, each once
+    ns = 0
     for p in range(n):
         ins = True
         nb = True
@@ -142,13 +144,18 @@ def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # 
             nb = nb and abs(v - centre[a]) <= reach[a]
             cells[p, a] = min(max(int((v - lo[a]) / cell), 0), dims[a] - 1)
         inside[p], near[p] = ins, nb
-        if ins or nb or moving[p]:
-            c0, c1, c2 = cells[p, 0], cells[p, 1], cells[p, 2]
-            for i in range(max(c0 - 2, 0), min(c0 + 3, dims[0])):
-                for j in range(max(c1 - 2, 0), min(c1 + 3, dims[1])):
-                    for k in range(max(c2 - 2, 0), min(c2 + 3, dims[2])):
-                        inner = abs(i - c0) <= 1 and abs(j - c1) <= 1 and abs(k - c2) <= 1
-                        marks[i, j, k] = max(marks[i, j, k], 2 if inner else 1)
+        c0, c1, c2 = cells[p, 0], cells[p, 1], cells[p, 2]
+        if (ins or nb or moving[p]) and marks[c0, c1, c2] < 3:
+            marks[c0, c1, c2] = 3
+            sources[ns] = c0, c1, c2
+            ns += 1
+    for s in range(ns):
+        c0, c1, c2 = sources[s, 0], sources[s, 1], sources[s, 2]
+        for i in range(max(c0 - 2, 0), min(c0 + 3, dims[0])):
+            for j in range(max(c1 - 2, 0), min(c1 + 3, dims[1])):
+                for k in range(max(c2 - 2, 0), min(c2 + 3, dims[2])):
+                    inner = abs(i - c0) <= 1 and abs(j - c1) <= 1 and abs(k - c2) <= 1
+                    marks[i, j, k] = max(marks[i, j, k], 2 if inner else 1)
     count = 0
     chosen = np.empty(n, np.int64)
     movable = np.empty(n, np.bool_)
@@ -156,7 +163,7 @@ def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # 
         mark = marks[cells[p, 0], cells[p, 1], cells[p, 2]]
         if mark > 0:
             chosen[count] = p
-            movable[count] = mark == 2
+            movable[count] = mark >= 2
             count += 1
     return inside, near, chosen[:count], movable[:count]
 
