@@ -15,7 +15,6 @@ the loop's own.
 
 from __future__ import annotations
 
-import argparse
 import os
 import tempfile
 from pathlib import Path
@@ -25,15 +24,11 @@ import numpy as np
 from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.runtime import set_threads
+from reduce_loop import point_parser  # the sibling benchmark (benchmarks/ is on sys.path)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--results", default="results")
-    ap.add_argument("--config", default="config/config.yaml")
-    ap.add_argument("--scenario", required=True)
-    ap.add_argument("--speed", type=float, required=True)
-    ap.add_argument("--depth", type=float, required=True)
+    ap = point_parser(__doc__)
     ap.add_argument("--dynamics", default="replay")
     ap.add_argument("--bound", type=float, default=0.1, help="overlap counted, over the radius")
     args = ap.parse_args()
@@ -53,7 +48,7 @@ def main() -> None:
 
     def traced(state: ReducedState, *a: object, **k: object) -> object:
         before = state.x.copy()
-        stats = step(state, *a, **k)  # type: ignore[arg-type]
+        stats = step(state, *a, **k)
         pi, pj = candidate_pairs(state.x, state.r, 0.0)
         dist = np.linalg.norm(state.x[pi] - state.x[pj], axis=1)
         gap = (state.r[pi] + state.r[pj] - dist) / np.minimum(state.r[pi], state.r[pj])
@@ -67,7 +62,7 @@ def main() -> None:
         )
         return stats
 
-    ReducedState.step = traced  # type: ignore[method-assign]
+    ReducedState.step = traced
     source = (
         args.dynamics if args.dynamics == "replay" else P.dynamics_model_path(res, args.dynamics)
     )

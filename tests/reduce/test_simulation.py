@@ -87,3 +87,17 @@ def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
     worst = largest_overlap(state.x, state.r)
     assert worst == pytest.approx(stats.max_overlap, abs=1e-12)
     assert worst <= 0.1
+
+
+def test_a_grain_moved_past_the_ring_has_its_overlap_counted_over_the_whole_bed():
+    # the field throws the grain 0.136 m (beyond the two selection cells of 0.05 m that the
+    # projection reaches) onto a resting grain three cells away, 0.3 radius deep
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    x = np.array([[0.30, 0.0, 0.02], [0.47, 0.0, 0.02]])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 13.6
+    state = _state(x, np.zeros_like(x), grid, ReducedSettings(advect_margin=0.0))
+    stats = state.step(field, np.full(grid.bins, 1500.0), np.zeros(3), 0.01)
+    assert state.beyond_ring == 1
+    assert stats.max_overlap == pytest.approx(largest_overlap(state.x, state.r), abs=1e-12)
+    assert stats.max_overlap == pytest.approx(0.3, abs=1e-6)

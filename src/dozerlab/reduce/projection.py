@@ -394,12 +394,11 @@ def project(
     r0 = np.asarray(radii, dtype=np.float64)
     w0 = np.asarray(inv_mass, dtype=np.float64)
     m = 0.5 * float(r0.min()) if margin is None else float(margin)
-    body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
     settings = (int(iterations), method == "gauss_seidel", float(relaxation), float(slop))
     total = ProjectionStats(0.0, 0.0, 0, 0)
     for _ in range(ROUNDS):
         start = np.array(x, dtype=np.float64)
-        total.max_overlap, st = _round(x, r0, w0, m, body_args, *settings, float(tolerance))
+        total.max_overlap, st = _round(x, r0, w0, m, bodies, *settings, float(tolerance))
         total.body_depth = max(total.body_depth, st.body_depth)
         total.pairs, total.body_contacts = st.pairs, st.body_contacts
         total.sweeps += st.sweeps
@@ -437,7 +436,7 @@ def _round(
     r0: np.ndarray,
     w0: np.ndarray,
     m: float,
-    body_args: tuple[np.ndarray, ...],
+    bodies: Bodies,
     iterations: int,
     gauss_seidel: bool,
     relaxation: float,
@@ -448,6 +447,7 @@ def _round(
 
     Returns the largest overlap over the listed pairs and the round's stats.
     """
+    body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
     # sorted by cell: the sweeps walk memory forward (spatial order; SPEC §2)
     x0 = np.asarray(x, dtype=np.float64)
     lo, cell, dims = broadphase.grid_layout(x0, float(r0.max()) + m, max(8 * x0.shape[0], 4096))
