@@ -42,13 +42,20 @@ def _accuracy(c: dict[str, Any]) -> str:
     )
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def point_parser(doc: str) -> argparse.ArgumentParser:
+    """The arguments naming a sweep point's inputs: --results, --config, --scenario, --speed,
+    --depth (also benchmarks/reduce_overlaps.py's)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--results", default="results")
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--scenario", required=True)
     ap.add_argument("--speed", type=float, required=True)
     ap.add_argument("--depth", type=float, required=True)
+    return ap
+
+
+def main() -> None:
+    ap = point_parser(__doc__)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dynamics", nargs="+", default=["replay"])
     ap.add_argument(

@@ -129,7 +129,7 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     perm, lo, dims = cell_sorted(x, 0.2)
     x, r, w = np.ascontiguousarray(x[perm]), r[perm], w[perm]
     b = bodies()
-    pi, pj = projection._pairs_sorted(x, r + 0.02, lo, 0.2, dims)
+    pi, pj = projection._pairs_sorted(x, r + 0.02, w, lo, 0.2, dims)
     bi, bb = projection._body_candidates(
         x, r, w, 0.1, b.kind, b.centre, b.rotation, b.half, b.normal
     )
@@ -143,14 +143,33 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     assert tests_r < 0.8 * tests_full
 
 
-def test_pairs_sorted_finds_every_pair_within_reach():
+def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles():
     x, r, _ = pile(150, seed=7)
+    w = np.where(np.arange(150) % 3 == 0, 0.0, 1.0)  # a third are obstacles
     reach = r + 0.01
     d = np.linalg.norm(x[:, None] - x[None], axis=2)
     want = {
-        (a, b) for a, b in zip(*np.nonzero(d < reach[:, None] + reach[None]), strict=True) if a < b
+        (a, b)
+        for a, b in zip(*np.nonzero(d < reach[:, None] + reach[None]), strict=True)
+        if a < b and (w[a] > 0 or w[b] > 0)
     }
     perm, lo, dims = cell_sorted(x, 0.11)  # cells >= the largest reach sum
-    pa, pb = projection._pairs_sorted(np.ascontiguousarray(x[perm]), reach[perm], lo, 0.11, dims)
+    pa, pb = projection._pairs_sorted(
+        np.ascontiguousarray(x[perm]), reach[perm], w[perm], lo, 0.11, dims
+    )
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_contact_closed_beyond_the_margin_is_found_and_resolved(method):
+    # B is pushed 1.75 radii by the obstacle A into C, which began beyond the contact list's
+    # reach (r_B + r_C + 2·margin = 0.06 m): a fresh search finds it and a second round separates
+    x = np.array([[0.0, 0.0, 0.5], [0.005, 0.0, 0.5], [0.067, 0.0, 0.5]])
+    r = np.full(3, 0.02)
+    stats = project(
+        x, r, np.array([0.0, 1.0, 1.0]), bodies(box=False), iterations=50, method=method
+    )
+    gaps = [np.linalg.norm(x[1] - x[0]) - 0.04, np.linalg.norm(x[2] - x[1]) - 0.04]
+    assert min(gaps) > -1e-3 * 0.02
+    assert stats.max_overlap == pytest.approx(max(0.0, -min(gaps) / 0.02), abs=1e-9)

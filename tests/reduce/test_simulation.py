@@ -7,6 +7,7 @@ import pytest
 
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.ndem.bodies import Bodies as NdemBodies
+from dozerlab.reduce.compare import largest_overlap
 from dozerlab.reduce.projection import Bodies
 from dozerlab.reduce.simulation import ReducedSettings, ReducedState
 
@@ -69,3 +70,34 @@ def test_grains_above_the_volume_ride_with_it_and_fall_once_it_lets_them_go():
     for _ in range(3):
         state.step(field, np.full(grid.bins, 1500.0), np.array([5.0, 0.0, 0.5]), h)
     assert state.x[0, 2] == pytest.approx(z - 6 * 9.81 * h * h, rel=1e-9)  # h·g·(1 + 2 + 3)·h
+
+
+def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
+    # A row of touching grains on the ground; the field drives the first, the only one in the
+    # volume, one radius into the second. The third lies two selection cells from the first
+    # (beyond the grains projected with it): pushed into by the second, it must hold as an
+    # obstacle and count in the largest overlap.
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    x = np.array([[0.38 + 0.04 * i, 0.0, 0.02] for i in range(4)])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 2.0
+    state = _state(x, np.zeros_like(x), grid, ReducedSettings(advect_margin=0.0))
+    stats = state.step(field, np.full(grid.bins, 1500.0), np.zeros(3), 0.01)
+    assert not np.allclose(state.x, x)  # the step moved grains
+    worst = largest_overlap(state.x, state.r)
+    assert worst == pytest.approx(stats.max_overlap, abs=1e-12)
+    assert worst <= 0.1
+
+
+def test_a_grain_moved_past_the_ring_has_its_overlap_counted_over_the_whole_bed():
+    # the field throws the grain 0.136 m (beyond the two selection cells of 0.05 m that the
+    # projection reaches) onto a resting grain three cells away, 0.3 radius deep
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    x = np.array([[0.30, 0.0, 0.02], [0.47, 0.0, 0.02]])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 13.6
+    state = _state(x, np.zeros_like(x), grid, ReducedSettings(advect_margin=0.0))
+    stats = state.step(field, np.full(grid.bins, 1500.0), np.zeros(3), 0.01)
+    assert state.beyond_ring == 1
+    assert stats.max_overlap == pytest.approx(largest_overlap(state.x, state.r), abs=1e-12)
+    assert stats.max_overlap == pytest.approx(0.3, abs=1e-6)

@@ -14,7 +14,9 @@ grid; :func:`dozerlab.ndem.contacts._body_test` for the bodies). Gauss-Seidel re
 contacts of spheres that moved since their last test, and the sweeps stop early once the largest
 correction is within ``tolerance`` (see :func:`project`): most of a step's contacts are a settled
 bed's, resolved in the first sweep. A last pass pushes every sphere fully out of the bodies, so
-no sphere ends inside the ground, a wall or the blade whatever the iteration count.
+no sphere ends inside the ground, a wall or the blade whatever the iteration count. The largest
+overlap reported is every pair's: the list holds every contact while no sphere has moved more
+than the margin since it was made, and past that a fresh search checks, and projects again.
 """
 
 from __future__ import annotations
@@ -57,8 +59,9 @@ def _pair_gap(x, radii, i, j):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
-    """Count the pairs (a, b), a < b, closer than reach_a + reach_b; write the first pa.size.
+def _scan_pairs(x, reach, inv_m, start, dims, pa, pb):  # pragma: no cover - compiled
+    """Count the pairs (a, b), a < b, closer than reach_a + reach_b and not both obstacles
+    (``inv_m`` 0: the projection leaves such a pair alone); write the first pa.size.
 
     Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
     slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself).
@@ -81,6 +84,8 @@ def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
                             for a in range(start[c], start[c + 1]):
                                 xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
                                 for b in range(max(start[q], a + 1), start[q + 1]):
+                                    if inv_m[a] <= 0.0 and inv_m[b] <= 0.0:
+                                        continue
                                     d0 = xa0 - x[b, 0]
                                     d1 = xa1 - x[b, 1]
                                     d2 = xa2 - x[b, 2]
@@ -93,8 +98,9 @@ def _scan_pairs(x, reach, start, dims, pa, pb):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
-    """Pairs (a, b), a < b, of spheres closer than reach_a + reach_b (m), in one serial pass.
+def _pairs_sorted(x, reach, inv_m, lo, cell, dims):  # pragma: no cover - compiled
+    """Pairs (a, b), a < b, of spheres closer than reach_a + reach_b (m), not both obstacles
+    (``inv_m`` (N,) 0), in one serial pass.
 
     ``x`` (N, 3) is sorted by cell (x-major) on the grid (lo, cell, dims), so the pairs come out
     in memory order and a Gauss-Seidel sweep over them walks the arrays forward.
@@ -107,10 +113,10 @@ def _pairs_sorted(x, reach, lo, cell, dims):  # pragma: no cover - compiled
         start[c + 1] += start[c]
     pa = np.empty(8 * x.shape[0] + 16, np.int64)
     pb = np.empty_like(pa)
-    k = _scan_pairs(x, reach, start, dims, pa, pb)
+    k = _scan_pairs(x, reach, inv_m, start, dims, pa, pb)
     if k > pa.size:  # a packing denser than 16 candidates a sphere (overlapping grains): again
         pa, pb = np.empty(k, np.int64), np.empty(k, np.int64)
-        _scan_pairs(x, reach, start, dims, pa, pb)
+        _scan_pairs(x, reach, inv_m, start, dims, pa, pb)
     return pa[:k], pb[:k]
 
 
@@ -303,10 +309,12 @@ def _push_out_of_bodies(x, radii, bi, bb, kind, bpos, brot, bext, bnormal):  # p
 
 
 @njit(cache=True)
-def _largest_overlap(x, radii, pi, pj):  # pragma: no cover - compiled
-    """Largest pair overlap over the smaller radius (0 when none overlap)."""
+def _largest_overlap(x, radii, inv_m, pi, pj):  # pragma: no cover - compiled
+    """Largest overlap over the smaller radius of the pairs with a movable sphere (0 if none)."""
     worst = 0.0
     for k in range(pi.shape[0]):
+        if inv_m[pi[k]] <= 0.0 and inv_m[pj[k]] <= 0.0:
+            continue
         g, _, _, _ = _pair_gap(x, radii, pi[k], pj[k])
         if g > 0.0:
             worst = max(worst, g / min(radii[pi[k]], radii[pj[k]]))
@@ -370,7 +378,10 @@ def project(
         tolerance: the sweeps stop after one whose largest correction is at most this fraction
             of the smaller radius (>= 0; 0: only once a sweep corrects nothing).
         margin: contact search margin, m (default: half the smallest radius): contacts that
-            close during the projection are caught if they start within it.
+            close during the projection are caught if they start within it; a sphere moved
+            further sends the projection to a fresh contact search (up to ``ROUNDS`` rounds).
+
+    Returns the stats; ``max_overlap`` covers every pair with a movable sphere.
     """
     if method not in METHODS:
         raise ValueError(f"projection method must be one of {METHODS}, got {method!r}")
@@ -381,7 +392,62 @@ def project(
     if x.shape[0] == 0:
         return ProjectionStats(0.0, 0.0, 0, 0)
     r0 = np.asarray(radii, dtype=np.float64)
+    w0 = np.asarray(inv_mass, dtype=np.float64)
     m = 0.5 * float(r0.min()) if margin is None else float(margin)
+    settings = (int(iterations), method == "gauss_seidel", float(relaxation), float(slop))
+    total = ProjectionStats(0.0, 0.0, 0, 0)
+    for _ in range(ROUNDS):
+        start = np.array(x, dtype=np.float64)
+        total.max_overlap, st = _round(x, r0, w0, m, bodies, *settings, float(tolerance))
+        total.body_depth = max(total.body_depth, st.body_depth)
+        total.pairs, total.body_contacts = st.pairs, st.body_contacts
+        total.sweeps += st.sweeps
+        total.tests += st.tests
+        # The list holds every pair closer than r_i + r_j + 2·margin when it was made: while no
+        # sphere has moved more than the margin since (sweeps and push-out), it holds every
+        # contact and its largest overlap is every pair's. Otherwise a contact may have closed
+        # unlisted: search afresh, and project again if one did.
+        if _largest_step(x, start) <= m:
+            break
+        fresh = largest_movable_overlap(x, r0, w0)
+        if fresh <= total.max_overlap:
+            break
+        total.max_overlap = fresh
+    return total
+
+
+@njit(cache=True)
+def _largest_step(x, start):  # pragma: no cover - compiled
+    """Largest distance (m) between rows of ``x`` and ``start`` (N, 3)."""
+    worst = 0.0
+    for i in range(x.shape[0]):
+        d0, d1, d2 = x[i, 0] - start[i, 0], x[i, 1] - start[i, 1], x[i, 2] - start[i, 2]
+        worst = max(worst, d0 * d0 + d1 * d1 + d2 * d2)
+    return np.sqrt(worst)
+
+
+#: Projection rounds at most (each a contact search, sweeps and push-out): a round more runs
+#: only when a fresh search finds a contact overlapping more than the last round's list holds.
+ROUNDS = 3
+
+
+def _round(
+    x: np.ndarray,
+    r0: np.ndarray,
+    w0: np.ndarray,
+    m: float,
+    bodies: Bodies,
+    iterations: int,
+    gauss_seidel: bool,
+    relaxation: float,
+    slop: float,
+    tolerance: float,
+) -> tuple[float, ProjectionStats]:
+    """One contact search, the sweeps and the push out of the bodies on ``x`` in place.
+
+    Returns the largest overlap over the listed pairs and the round's stats.
+    """
+    body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
     # sorted by cell: the sweeps walk memory forward (spatial order; SPEC §2)
     x0 = np.asarray(x, dtype=np.float64)
     lo, cell, dims = broadphase.grid_layout(x0, float(r0.max()) + m, max(8 * x0.shape[0], 4096))
@@ -390,9 +456,8 @@ def project(
     )
     x_ = np.ascontiguousarray(x0[perm])
     r = np.ascontiguousarray(r0[perm])
-    w = np.ascontiguousarray(np.asarray(inv_mass, dtype=np.float64)[perm])
-    pi, pj = _pairs_sorted(x_, r + m, lo, cell, dims)
-    body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
+    w = np.ascontiguousarray(w0[perm])
+    pi, pj = _pairs_sorted(x_, r + m, w, lo, cell, dims)
     # bodies are few: a whole radius of margin is cheap and catches grains pushed towards them
     bi, bb = _body_candidates(x_, r, w, float(r.max()) + m, *body_args)
     sweeps, tests = _iterate(
@@ -404,17 +469,29 @@ def project(
         bi,
         bb,
         *body_args,
-        int(iterations),
-        method == "gauss_seidel",
-        float(relaxation),
-        float(slop),
-        float(tolerance),
+        iterations,
+        gauss_seidel,
+        relaxation,
+        slop,
+        tolerance,
         True,
     )
     # afresh: the pair corrections may have pushed a sphere into a body it was not near before
     fi, fb = _body_candidates(x_, r, w, 0.0, *body_args)
     depth = _push_out_of_bodies(x_, r, fi, fb, *body_args)
     x[perm] = x_
-    return ProjectionStats(
-        float(_largest_overlap(x_, r, pi, pj)), float(depth), pi.size, bi.size, sweeps, tests
-    )
+    listed = float(_largest_overlap(x_, r, w, pi, pj))
+    return listed, ProjectionStats(listed, float(depth), pi.size, bi.size, sweeps, tests)
+
+
+def largest_movable_overlap(x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray) -> float:
+    """Largest overlap over the smaller radius of the pairs of ``x`` (N, 3) m with a movable
+    sphere (inv_mass > 0), by a fresh contact search (0 when none overlap). Pairs of two
+    obstacles are left out: the projection cannot change them."""
+    pi, pj = candidate_pairs(x, radii, 0.0)
+    keep = (inv_mass[pi] > 0.0) | (inv_mass[pj] > 0.0)
+    pi, pj = pi[keep], pj[keep]
+    if pi.size == 0:
+        return 0.0
+    gap = radii[pi] + radii[pj] - np.linalg.norm(x[pi] - x[pj], axis=1)
+    return float(max(0.0, (gap / np.minimum(radii[pi], radii[pj])).max()))

@@ -53,7 +53,9 @@ def reduce_run(
     solver, material, blade, sampling, reduced). Returns the run's metrics: ``wall_time_s``,
     per-phase ms per step (``ms_<phase>``), the largest overlap after projection over the radius
     (``max_overlap``), the deepest body penetration the projection iterations left before the
-    final push-out (``max_body_depth_m``), the mean count of grains moved per step and of projection sweeps run per step.
+    final push-out (``max_body_depth_m``), the mean count of grains moved per step and of
+    projection sweeps run per step, and the steps whose largest overlap was taken over the whole
+    bed (``beyond_ring_steps``: a grain moved past the projected set's ring).
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
     from dozerlab.fields.run import load_inputs, moved_bed, sample_row
@@ -183,6 +185,7 @@ def reduce_run(
         "active_grains_mean": float(np.mean(active)) if active else 0.0,
         "projection_sweeps_mean": float(np.mean(sweeps)) if sweeps else 0.0,
         "reduced_steps": float(times.steps),
+        "beyond_ring_steps": float(state.beyond_ring),
     }
     metrics |= {f"ms_{k}": v for k, v in times.per_step_ms().items()}
     log.info("reduce done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
