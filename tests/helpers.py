@@ -319,6 +319,22 @@ def import_entry(module: str) -> tuple[str, str]:
     return out.stdout.strip(), out.stderr
 
 
+def lazy_model_class(module: str, name: str) -> list[str]:
+    """In a fresh interpreter: whether importing ``module`` imported MLflow, then the name of
+    its attribute ``name`` (a PythonModel class, as an older model directory imports it) and
+    whether MLflow is imported then."""
+    import subprocess
+    import sys
+
+    code = (
+        f"import sys, {module} as m\n"
+        "print('mlflow' in sys.modules)\n"
+        f"print(m.{name}.__name__, 'mlflow' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return out.stdout.split()
+
+
 #: The reduce tests' run: the tiny run's bed, blade and path sampled at every step, and a linear
 #: force model of one epoch.
 REDUCED_RUN = {

@@ -170,14 +170,18 @@ class PyfuncFormat:
     ``what`` names the directory in messages; ``entry`` is the family's models-from-code file
     (loading runs it instead of unpickling an object); ``build(meta, weights)`` rebuilds a model;
     ``extras(model, arrays)`` gives the family's own ``save_model``/``log_model`` arguments
-    (signature, input example from per-row store arrays, metadata); ``check(meta, path)`` refuses
-    a directory of another family before it is built.
+    (signature, input example from per-row store arrays, metadata); ``class_name`` and
+    ``predict(model, model_input)`` make the family's MLflow ``PythonModel`` class
+    (:func:`python_model_class`), which the entry sets; ``check(meta, path)`` refuses a directory
+    of another family before it is built.
     """
 
     what: str
     entry: Path
     build: Callable[[dict[str, Any], str | Path], Any]
     extras: Callable[[Any, dict[str, np.ndarray]], dict[str, Any]]
+    class_name: str
+    predict: Callable[[Any, Any], Any]
     check: Callable[[dict[str, Any], str | Path], None] = lambda meta, path: None
 
     def kwargs(
@@ -219,35 +223,34 @@ class PyfuncFormat:
         return self.build(meta, weights), meta
 
 
+def predict_frame(model: ForceModel, arrays: dict[str, np.ndarray]) -> pd.DataFrame:
+    """(B, 6) DataFrame force_x … torque_z (N, N·m) of per-step input arrays (the contract)."""
+    return pd.DataFrame(predict_arrays(model, arrays), columns=list(TARGET_NAMES))
+
+
 #: The force models' pyfunc directories.
 FORMAT = PyfuncFormat(
-    "dozerlab model", Path(__file__).with_name("pyfunc_entry.py"), build, model_extras
+    "dozerlab model",
+    Path(__file__).with_name("pyfunc_entry.py"),
+    build,
+    model_extras,
+    "ForcePyfunc",
+    predict_frame,
 )
 save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
 
 
 @functools.cache
-def _force_pyfunc() -> type:
-    from dozerlab.learn.pyfunc_model import BuiltModel, untyped_predict
+def python_model_class(fmt: PyfuncFormat) -> type:
+    """``fmt``'s MLflow ``PythonModel`` class, made on first use: making it imports MLflow, which
+    the jobs that read model directories directly (:meth:`PyfuncFormat.load`) never need."""
+    from dozerlab.learn.pyfunc_model import model_class
 
-    with untyped_predict():
-
-        class ForcePyfunc(BuiltModel):
-            """MLflow pyfunc wrapper around a :class:`ForceModel`."""
-
-            build = staticmethod(build)
-
-            def predict(self, context, model_input, params=None):
-                """(B, 6) DataFrame force_x … torque_z (N, N·m) of a dict of per-step arrays."""
-                out = predict_arrays(self.model, model_input)
-                return pd.DataFrame(out, columns=list(TARGET_NAMES))
-
-    return ForcePyfunc
+    return model_class(fmt.class_name, fmt.what, fmt.build, fmt.predict)
 
 
 def __getattr__(name: str) -> Any:
-    # ``ForcePyfunc`` (what pyfunc_entry.py sets) is defined on first use: defining a PythonModel
-    # imports MLflow, which the jobs that read models directly never need.
-    if name == "ForcePyfunc":
-        return _force_pyfunc()
+    # ``ForcePyfunc``: what pyfunc_entry.py sets, made when MLflow's loader runs it.
+    if name == FORMAT.class_name:
+        return python_model_class(FORMAT)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,5 +1,5 @@
-"""The MLflow side of the pyfunc model directories: the ``PythonModel`` base of each family's
-class (``ForcePyfunc``, ``DynamicsPyfunc``), which its ``pyfunc`` module defines on first use.
+"""The MLflow side of the pyfunc model directories: each family's ``PythonModel`` class
+(``ForcePyfunc``, ``DynamicsPyfunc``), made on first use (``pyfunc.python_model_class``).
 
 Only MLflow's loader (through the models-from-code entries) and the save and log calls import
 this, and MLflow with it: the jobs read a model directory directly (``PyfuncFormat.load``),
@@ -43,3 +43,29 @@ with untyped_predict():
         def load_context(self, context: Any) -> None:
             meta = json.loads(Path(context.artifacts["meta"]).read_text())
             self.model = self.build(meta, context.artifacts["weights"])
+
+
+def model_class(
+    name: str,
+    what: str,
+    build: Callable[[dict[str, Any], str | Path], Any],
+    predict: Callable[[Any, Any], Any],
+) -> type:
+    """A :class:`BuiltModel` named ``name`` (wrapping a ``what``) whose ``predict`` answers
+    ``predict(model, model_input)``."""
+
+    def predict_method(self, context, model_input, params=None):
+        return predict(self.model, model_input)
+
+    predict_method.__doc__ = predict.__doc__
+    with untyped_predict():
+        return type(
+            name,
+            (BuiltModel,),
+            {
+                "build": staticmethod(build),
+                "predict": predict_method,
+                "__module__": __name__,
+                "__doc__": f"MLflow pyfunc wrapper around a {what}.",
+            },
+        )

@@ -16,7 +16,6 @@ known rows and the m rows to predict. Normalisation is inside the model. The dir
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,12 @@ import numpy as np
 import torch
 
 from dozerlab.learn.dynamics.models import DynamicsModel
-from dozerlab.learn.pyfunc import INPUT_NAMES, PyfuncFormat, require_inputs
+from dozerlab.learn.pyfunc import (
+    INPUT_NAMES,
+    PyfuncFormat,
+    python_model_class,
+    require_inputs,
+)
 from dozerlab.runtime import DozerlabError
 
 OUTPUT_NAMES = ("velocity", "density")
@@ -119,31 +123,15 @@ FORMAT = PyfuncFormat(
     Path(__file__).with_name("pyfunc_entry.py"),
     build,
     _extras,
+    "DynamicsPyfunc",
+    predict_arrays,
     _check,
 )
 save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
 
 
-@functools.cache
-def _dynamics_pyfunc() -> type:
-    from dozerlab.learn.pyfunc_model import BuiltModel, untyped_predict
-
-    with untyped_predict():
-
-        class DynamicsPyfunc(BuiltModel):
-            """MLflow pyfunc wrapper around a :class:`DynamicsModel`."""
-
-            build = staticmethod(build)
-
-            def predict(self, context, model_input, params=None):
-                """The contract's output dict of the contract's input dict."""
-                return predict_arrays(self.model, model_input)
-
-    return DynamicsPyfunc
-
-
 def __getattr__(name: str) -> Any:
-    # ``DynamicsPyfunc`` (what pyfunc_entry.py sets) is defined on first use, as ``ForcePyfunc``.
-    if name == "DynamicsPyfunc":
-        return _dynamics_pyfunc()
+    # ``DynamicsPyfunc``: what pyfunc_entry.py sets, made when MLflow's loader runs it.
+    if name == FORMAT.class_name:
+        return python_model_class(FORMAT)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
