@@ -8,6 +8,7 @@ parent run's ``DOZERLAB_PARENT_RUN_ID`` — writes it as a folder, without impor
 
     <spool>/<parent run id>/<record>/run.json        name, tags, params, metrics, times, status
     <spool>/<parent run id>/<record>/artifacts/...   copies of the files the job logged
+    <spool>/<parent run id>/<record>/model/...       a copy of the model directory it logged
 
 A job's folder is ``.open-<record>`` while it runs and ``<record>`` once its status is known.
 One process logs the finished ones as MLflow child runs of the parent, with the job's own start
@@ -40,6 +41,7 @@ SPOOL_ENV = "DOZERLAB_MLFLOW_SPOOL"
 RECORD_TAG = "dozerlab.record"
 OPEN_PREFIX = ".open-"
 RUN_FILE = "run.json"
+MODEL_DIR = "model"
 #: MLflow's limits on one ``log_batch`` call.
 PARAMS_PER_BATCH, METRICS_PER_BATCH = 100, 1000
 
@@ -83,6 +85,12 @@ class SpooledRun:
         """Record every file under ``directory`` (under ``artifact_path``), as it lies there."""
         dest = self.folder / "artifacts" / (artifact_path or "")
         shutil.copytree(directory, dest, dirs_exist_ok=True)
+
+    def log_model(self, directory: str | Path) -> str:
+        """Record the saved MLflow model ``directory`` as the run's model; its ``models:/`` URI
+        is known once it is logged, so "" here."""
+        shutil.copytree(directory, self.folder / MODEL_DIR)
+        return ""
 
     def save(self) -> None:
         _write_json(self.folder / RUN_FILE, self.doc)
@@ -178,8 +186,23 @@ def log_record(client: Any, experiment_id: str, parent: str, folder: Path) -> st
         client.log_batch(run_id, metrics=metrics[i : i + METRICS_PER_BATCH])
     if (folder / "artifacts").is_dir():
         client.log_artifacts(run_id, str(folder / "artifacts"))
+    if (folder / MODEL_DIR).is_dir():
+        log_model_dir(client, experiment_id, run_id, folder / MODEL_DIR)
     client.set_terminated(run_id, status=status, end_time=end)
     return run_id
+
+
+def log_model_dir(client: Any, experiment_id: str, run_id: str, directory: str | Path) -> str:
+    """Log a saved MLflow model ``directory`` as the model ``model`` of run ``run_id`` (a
+    LoggedModel with the run as its source and output, as ``log_model`` makes); return its
+    ``models:/`` URI."""
+    from mlflow.entities import LoggedModelOutput, LoggedModelStatus
+
+    model = client.create_logged_model(experiment_id, name=MODEL_DIR, source_run_id=run_id)
+    client.log_model_artifacts(model.model_id, str(directory))
+    client.finalize_logged_model(model.model_id, LoggedModelStatus.READY)
+    client.log_outputs(run_id, [LoggedModelOutput(model.model_id, step=0)])
+    return f"models:/{model.model_id}"
 
 
 def ingest(client: Any, root: Path, parent: str, *, with_open: bool) -> int:

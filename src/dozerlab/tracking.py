@@ -165,6 +165,10 @@ class JobRun(Protocol):
 
     def log_artifacts(self, directory: str | Path, artifact_path: str | None = None) -> None: ...
 
+    def log_model(self, directory: str | Path) -> str:
+        """Log a saved MLflow model directory as the run's model; its URI, or "" if not yet."""
+        ...
+
 
 class LiveRun:
     """The job's active MLflow run (``info``: MLflow's RunInfo of it)."""
@@ -187,6 +191,13 @@ class LiveRun:
 
         mlflow.log_artifacts(str(directory), artifact_path=artifact_path)
 
+    def log_model(self, directory: str | Path) -> str:
+        from mlflow import MlflowClient
+
+        return spool.log_model_dir(
+            MlflowClient(), self.info.experiment_id, self.info.run_id, directory
+        )
+
 
 @contextmanager
 def tracked_run(
@@ -196,7 +207,6 @@ def tracked_run(
     tags: Mapping[str, Any] | None = None,
     params: Mapping[str, Any] | None = None,
     experiment: str = "dozerlab",
-    live: bool = False,
 ) -> Iterator[JobRun | None]:
     """Open an MLflow run for one job; yields it, or None when tracking is off.
 
@@ -205,7 +215,7 @@ def tracked_run(
     make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
     flattened. A job that raises leaves its run marked FAILED. Under a workflow with a spool
     (``DOZERLAB_MLFLOW_SPOOL``, :mod:`dozerlab.spool`) the run is recorded there, without
-    MLflow, unless the job needs MLflow's active run itself (``live``: a model to log).
+    MLflow.
     """
     if not enabled():
         yield None
@@ -215,7 +225,7 @@ def tracked_run(
     if os.environ.get("SLURM_JOB_ID"):
         all_tags["slurm_job_id"] = os.environ["SLURM_JOB_ID"]
     root = spool_root()
-    if parent is not None and root is not None and not live:
+    if parent is not None and root is not None:
         with spooled_run(root, parent, name, all_tags, flatten(params or {})) as spooled:
             yield spooled
         return
@@ -237,7 +247,6 @@ def job_run(
     rule: str,
     tags: Mapping[str, Any] | None = None,
     params: Mapping[str, Any] | None = None,
-    live: bool = False,
 ) -> AbstractContextManager[JobRun | None]:
     """:func:`tracked_run` as a job's validated ``config`` asks: no run (None) when
     ``mlflow.enabled`` is false, else one in ``mlflow.experiment``. Every job opens its run so."""
@@ -245,7 +254,7 @@ def job_run(
     if not cfg.get("enabled", True):
         return nullcontext(None)
     experiment = cfg.get("experiment", "dozerlab")
-    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment, live=live)
+    return tracked_run(name, rule=rule, tags=tags, params=params, experiment=experiment)
 
 
 def close_stale_runs(client: Any, experiment_id: str) -> list[str]:

@@ -43,6 +43,34 @@ def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_fi
     assert [m.step for m in history] == [0, 1]
 
 
+def test_a_training_under_a_workflow_spools_its_run_and_model(
+    tracking, store_files, config, monkeypatch
+):
+    from dozerlab import spool
+    from dozerlab.tracking import PARENT_ENV, start_parent_run
+
+    config["learn"]["epochs"] = 1
+    config["mlflow"]["enabled"] = True
+    parent = start_parent_run("dozerlab", "workflow")
+    monkeypatch.setenv(PARENT_ENV, parent)
+    monkeypatch.setenv(spool.SPOOL_ENV, str(tracking / "spool"))
+    out = tracking / "models" / "spooled"
+    result = train_job("linear", store_files["train"], config, out, progress=False)
+    assert result.model_uri == ""  # known once logged
+    client = mlflow.MlflowClient()
+    assert spool.ingest(client, tracking / "spool", parent, with_open=False) == 1
+    (run,) = mlflow.search_runs(
+        experiment_names=["dozerlab"],
+        filter_string=f"tags.mlflow.parentRunId = '{parent}'",
+        output_format="list",
+    )
+    assert run.data.tags["rule"] == "train" and run.data.metrics["best_epoch"] == 0
+    (output,) = run.outputs.model_outputs
+    held_out = _inputs(load_store(store_files["interpolation"][0]))
+    got = mlflow.pyfunc.load_model(f"models:/{output.model_id}").predict(held_out)
+    np.testing.assert_allclose(got.to_numpy(), pyfunc.predict_arrays(result.model, held_out))
+
+
 def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     files = [str(p) for p in store_files["train"]]
     out = tracking / "models" / "linear"

@@ -129,7 +129,7 @@ def train_job(
     params["train_stores"] = ",".join(str(p) for p in train)
     name = f"{family.title}{kind}"
     with tracking.job_run(
-        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params, live=True
+        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params
     ) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
@@ -152,7 +152,7 @@ def train_job(
             with tempfile.TemporaryDirectory() as d:
                 png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
                 run.log_artifact(png)
-            result.model_uri = family.pyfunc.log(model, meta, example).model_uri
+            result.model_uri = run.log_model(out)
     return result
 
 

@@ -134,7 +134,7 @@ def pip_requirements() -> list[str]:
 
 
 def model_extras(model: ForceModel, example: dict[str, np.ndarray]) -> dict[str, Any]:
-    """A force model's own arguments of ``mlflow.pyfunc.save_model`` and ``log_model``: its
+    """A force model's own arguments of ``mlflow.pyfunc.save_model``: its
     signature and input example (the first row of per-row store arrays)."""
     return {
         "signature": signature(model.grid),
@@ -169,7 +169,7 @@ class PyfuncFormat:
 
     ``what`` names the directory in messages; ``entry`` is the family's models-from-code file
     (loading runs it instead of unpickling an object); ``build(meta, weights)`` rebuilds a model;
-    ``extras(model, arrays)`` gives the family's own ``save_model``/``log_model`` arguments
+    ``extras(model, arrays)`` gives the family's own ``save_model`` arguments
     (signature, input example from per-row store arrays, metadata); ``class_name`` and
     ``predict(model, model_input)`` make the family's MLflow ``PythonModel`` class
     (:func:`python_model_class`), which the entry sets; ``check(meta, path)`` refuses a directory
@@ -187,8 +187,8 @@ class PyfuncFormat:
     def kwargs(
         self, model: Any, meta: dict[str, Any], workdir: Path, arrays: dict[str, np.ndarray]
     ) -> dict[str, Any]:
-        """Arguments shared by ``mlflow.pyfunc.save_model`` and ``log_model`` (files go to
-        ``workdir``)."""
+        """The arguments of ``mlflow.pyfunc.save_model`` (files go to ``workdir``); the run logs
+        the saved directory (``JobRun.log_model``)."""
         return {
             "python_model": str(self.entry),
             "artifacts": write_artifacts(model, meta, workdir),
@@ -205,15 +205,6 @@ class PyfuncFormat:
 
         with tempfile.TemporaryDirectory() as tmp:
             mlflow.pyfunc.save_model(path=str(path), **self.kwargs(model, meta, Path(tmp), arrays))
-
-    def log(self, model: Any, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> Any:
-        """Log ``model`` to the active MLflow run as the model named ``model``."""
-        import mlflow.pyfunc
-
-        with tempfile.TemporaryDirectory() as tmp:
-            return mlflow.pyfunc.log_model(
-                name="model", **self.kwargs(model, meta, Path(tmp), arrays)
-            )
 
     def load(self, path: str | Path) -> tuple[Any, dict[str, Any]]:
         """Load a saved model directory directly (no MLflow runtime): the model and its
@@ -237,7 +228,7 @@ FORMAT = PyfuncFormat(
     "ForcePyfunc",
     predict_frame,
 )
-save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
+save, load = FORMAT.save, FORMAT.load
 
 
 @functools.cache

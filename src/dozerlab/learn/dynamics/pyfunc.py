@@ -127,7 +127,7 @@ FORMAT = PyfuncFormat(
     predict_arrays,
     _check,
 )
-save, log, load = FORMAT.save, FORMAT.log, FORMAT.load
+save, load = FORMAT.save, FORMAT.load
 
 
 def __getattr__(name: str) -> Any:
