@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 from dozerlab.learn.metrics import component_metrics
-from dozerlab.learn.models import ForceModel
+from dozerlab.learn.models import ForceModel, n_channels, resize_trilinear
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.learn.train import TrainingDiverged, train_model
 from dozerlab.learn.validate import predict_store
@@ -76,3 +77,53 @@ def test_linear_model_is_mirror_equivariant(train_stores, config):
     torch.testing.assert_close(
         mirrored, pred * parity, rtol=1e-4, atol=1e-3 * float(pred.abs().max())
     )
+
+
+@pytest.mark.parametrize(
+    ("shape", "size"), [((2, 3, 4, 3, 2), (8, 6, 4)), ((1, 2, 5, 3, 1), (9, 7, 2))]
+)
+def test_resize_trilinear_is_torchs_interpolation(shape, size):
+    """The matrix form equals F.interpolate's trilinear resize, values and gradients."""
+    x = torch.randn(*shape, dtype=torch.float64, requires_grad=True)
+    ref = F.interpolate(x, size=size, mode="trilinear", align_corners=False)
+    out = resize_trilinear(x, size)
+    torch.testing.assert_close(out, ref, rtol=0, atol=1e-12)
+    g = torch.randn_like(ref)
+    (grad_ref,) = torch.autograd.grad(ref, x, g)
+    (grad,) = torch.autograd.grad(out, x, g)
+    torch.testing.assert_close(grad, grad_ref, rtol=0, atol=1e-12)
+
+
+def test_resize_matrix_made_in_inference_mode_serves_training():
+    """A model first called for inference can still be trained in the same process."""
+    x = torch.randn(1, 1, 3, 5, 7)
+    with torch.inference_mode():
+        resize_trilinear(x, (6, 10, 13))
+    w = torch.ones((), requires_grad=True)
+    resize_trilinear(x * w, (6, 10, 13)).sum().backward()
+    assert w.grad is not None
+
+
+@pytest.mark.parametrize("history", [1, 3])
+def test_raw_features_are_the_documented_channels(history):
+    """Per step: v − v_b, ρ, ρ(v − v_b), ρv; then Δρ and Δ(ρv) of each step but the oldest."""
+    gen = torch.Generator().manual_seed(0)
+    b, grid = 2, (4, 3, 2)
+    v = torch.randn(b, history, *grid, 3, generator=gen)
+    rho = torch.rand(b, history, *grid, generator=gen)
+    vb = torch.randn(b, history, 3, generator=gen)
+    x, c = ForceModel.raw_features(v, rho, vb)
+    assert x.shape == (b, n_channels(history), *grid)
+    torch.testing.assert_close(c, vb.reshape(b, -1), rtol=0, atol=0)
+    for h in range(history):
+        rel = v[:, h] - vb[:, h, None, None, None, :]
+        want = [*rel.unbind(-1), rho[:, h], *(rho[:, h, ..., None] * rel).unbind(-1)]
+        want += [*(rho[:, h, ..., None] * v[:, h]).unbind(-1)]
+        for k, channel in enumerate(want):
+            torch.testing.assert_close(x[:, 10 * h + k], channel, rtol=0, atol=0)
+    for h in range(1, history):
+        base = 10 * history + 4 * (h - 1)
+        torch.testing.assert_close(x[:, base], rho[:, h] - rho[:, h - 1], rtol=0, atol=0)
+        mom = rho[:, h, ..., None] * v[:, h] - rho[:, h - 1, ..., None] * v[:, h - 1]
+        for a in range(3):
+            torch.testing.assert_close(x[:, base + 1 + a], mom[..., a], rtol=0, atol=0)

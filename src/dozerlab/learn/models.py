@@ -15,6 +15,7 @@ normalisation lives in buffers of the module, so a saved state dict is the whole
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -155,6 +156,31 @@ class ThesisCNN(nn.Module):
         return self.head(torch.cat([h.flatten(1), c], dim=1))
 
 
+@functools.cache
+def _linear_resize_matrix(n_in: int, n_out: int, dtype: torch.dtype, device: str) -> torch.Tensor:
+    """(n_out, n_in) weights of 1D linear resizing, taken from ``F.interpolate`` itself (made
+    outside inference mode, so training in the same process can save it for backward)."""
+    with torch.inference_mode(False):
+        eye = torch.eye(n_in, dtype=dtype, device=device)[:, None, :]
+        out = F.interpolate(eye, size=n_out, mode="linear", align_corners=False)
+        return out[:, 0, :].T.contiguous()
+
+
+def resize_trilinear(x: torch.Tensor, size: tuple[int, ...] | torch.Size) -> torch.Tensor:
+    """``F.interpolate(x, size, mode="trilinear", align_corners=False)`` of (B, C, X, Y, Z), equal
+    to round-off, as three small matrix products: torch's own kernel took 4–10× as long on the
+    CPU, forward and backward (a fifth of the U-Net's training step)."""
+    nx, ny, nz = x.shape[2:]
+    sx, sy, sz = (int(n) for n in size)
+    ax, ay, az = (
+        _linear_resize_matrix(n_in, n_out, x.dtype, str(x.device))
+        for n_in, n_out in ((nx, sx), (ny, sy), (nz, sz))
+    )
+    x = torch.matmul(x, az.T)  # B, C, X, Y, sz
+    x = torch.matmul(ay, x)  # B, C, X, sy, sz
+    return torch.matmul(ax, x.flatten(3)).unflatten(3, (sy, sz))
+
+
 def pad_even(x: torch.Tensor) -> torch.Tensor:
     """Pad (B, C, X, Y, Z) by one replicated bin at the end of each odd axis (for stride 2)."""
     pad = []
@@ -210,9 +236,8 @@ class ForceDensityUNet(nn.Module):
         h0 = self.e0(torch.cat([x, cond, self.coords.expand(b, -1, -1, -1, -1)], dim=1))
         h1 = self.e1(pad_even(h0))
         h2 = self.e2(pad_even(h1))
-        u1 = F.interpolate(h2, size=h1.shape[2:], mode="trilinear", align_corners=False)
-        u1 = self.d1(torch.cat([u1, h1], dim=1))
-        u0 = F.interpolate(u1, size=self.grid, mode="trilinear", align_corners=False)
+        u1 = self.d1(torch.cat([resize_trilinear(h2, h1.shape[2:]), h1], dim=1))
+        u0 = resize_trilinear(u1, self.grid)
         density = self.d0(torch.cat([u0, h0], dim=1))
         return density.mean(dim=(2, 3, 4)) + self.cond_head(c)
 
@@ -263,26 +288,34 @@ class ForceModel(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Unnormalised channels (B, n_channels(H), X, Y, Z) and conditioning (B, 3H).
 
-        Channels: the H steps' own channels (oldest first), then the H − 1 changes."""
-        rel = velocity - blade_velocity[:, :, None, None, None, :]
-        rho = density.unsqueeze(-1)
-        mom = rho * velocity
-        b, h = velocity.shape[:2]
-        parts = [torch.cat([rel, rho, rho * rel, mom], dim=-1)]  # B, H, X, Y, Z, 10
+        Channels: the H steps' own channels (oldest first), then the H − 1 changes. Written in
+        place into one tensor (16× faster than concatenating channel-last parts and permuting),
+        so the inputs must not require gradients."""
+        b, h, nx, ny, nz = density.shape
+        out = velocity.new_empty((b, n_channels(h), nx, ny, nz))
+        steps = out[:, : CHANNELS_PER_STEP * h].view(b, h, CHANNELS_PER_STEP, nx, ny, nz)
+        vel = velocity.permute(0, 1, 5, 2, 3, 4)
+        rho = density.unsqueeze(2)
+        torch.sub(vel, blade_velocity[..., None, None, None], out=steps[:, :, 0:3])
+        steps[:, :, 3:4] = rho
+        torch.mul(steps[:, :, 0:3], rho, out=steps[:, :, 4:7])
+        torch.mul(vel, rho, out=steps[:, :, 7:10])
         if h > 1:
-            state = torch.cat([rho, mom], dim=-1)
-            parts.append(state[:, 1:] - state[:, :-1])  # B, H-1, X, Y, Z, 4
-        ch = torch.cat([p.permute(0, 1, 5, 2, 3, 4).flatten(1, 2) for p in parts], dim=1)
-        return ch.contiguous(), blade_velocity.reshape(b, -1)
+            changes = out[:, CHANNELS_PER_STEP * h :].view(
+                b, h - 1, CHANNELS_PER_CHANGE, nx, ny, nz
+            )
+            for dst, src in ((slice(0, 1), slice(3, 4)), (slice(1, 4), slice(7, 10))):
+                torch.sub(steps[:, 1:, src], steps[:, :-1, src], out=changes[:, :, dst])
+        return out, blade_velocity.reshape(b, -1)
 
     def inputs(
         self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalised backbone inputs."""
         x, c = self.raw_features(velocity, density, blade_velocity)
-        x = (x - self.chan_mean[None, :, None, None, None]) / self.chan_std[
-            None, :, None, None, None
-        ]
+        x.sub_(self.chan_mean[None, :, None, None, None]).div_(
+            self.chan_std[None, :, None, None, None]
+        )
         return x, (c - self.cond_mean) / self.cond_std
 
     def normalized(

@@ -22,7 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from dozerlab.learn.dynamics.advection import advect
-from dozerlab.learn.models import pad_even
+from dozerlab.learn.models import pad_even, resize_trilinear
 
 DYNAMICS_MODELS = ("persistence", "ridge", "unet")
 #: Field channels of a row: density, then the three velocity components.
@@ -94,9 +94,8 @@ class EvolutionUNet(nn.Module):
         h0 = self.e0(torch.cat([x, cond, coords.expand(b, -1, -1, -1, -1)], dim=1))
         h1 = self.e1(pad_even(h0))
         h2 = self.e2(pad_even(h1))
-        u1 = F.interpolate(h2, size=h1.shape[2:], mode="trilinear", align_corners=False)
-        u1 = self.d1(torch.cat([u1, h1], dim=1))
-        u0 = F.interpolate(u1, size=grid, mode="trilinear", align_corners=False)
+        u1 = self.d1(torch.cat([resize_trilinear(h2, h1.shape[2:]), h1], dim=1))
+        u0 = resize_trilinear(u1, grid)
         return self.out(self.d0(torch.cat([u0, h0], dim=1)))
 
 
