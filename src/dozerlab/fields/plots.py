@@ -177,7 +177,10 @@ def write_gif(
         canvas.restore_region(background)
         for artist in animated:
             fig.draw_artist(artist)
-        images.append(Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3].copy()))
+        # Fast octree quantisation: the frames look the same, and the default median cut took
+        # ≈ 24 ms a frame, half of a comparison job's animation time.
+        frame = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3])
+        images.append(frame.quantize(colors=256, method=Image.Quantize.FASTOCTREE))
     with atomic_output(path, ANIMATION) as tmp:
         # The comment marks the GIF as ours, so a later run may replace it (runtime.ANIMATION).
         images[0].save(
