@@ -102,9 +102,7 @@ def test_gif_frames_drawn_over_the_static_figure_match_full_draws(tmp_path):
         buf = io.BytesIO()
         ref.savefig(buf, format="rgba", dpi=50)
         full.append(Image.frombuffer("RGBA", (150, 100), buf.getvalue(), "raw", "RGBA", 0, 1))
-    rgb = [
-        im.convert("RGB").quantize(colors=256, method=Image.Quantize.FASTOCTREE) for im in full
-    ]
+    rgb = [im.convert("RGB").quantize(colors=256, method=Image.Quantize.FASTOCTREE) for im in full]
     rgb[0].save(tmp_path / "full.gif", format="GIF", save_all=True, append_images=rgb[1:])
     # Animated artists are drawn above the static ones: the image covers the axes' frame, a
     # band of 2 pixels around its edges; everything else (the title too) is as drawn in full.
