@@ -122,7 +122,8 @@ def test_job_resources_name_account_and_partition_only_when_set():
         "slurm_partition": "gpu",
     }
     assert cluster.job_threads(config, "bed") == config["threads"]["bed"]
-    assert cluster.job_threads(config, "report") == 1
+    assert cluster.job_threads(config, "report") == config["threads"]["report"] == 2
+    assert cluster.job_threads(config, "validate") == 1
 
 
 @pytest.mark.parametrize("base", ["config.yaml", "quick.yaml"])

@@ -37,6 +37,7 @@ THREADED = {
     "train": "train",
     "train_dynamics": "dynamics",
     "reduce": "simulate",  # the NDEM run's threads: the speed-up compares the two at equal threads
+    "report": "report",
 }
 
 

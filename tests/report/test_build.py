@@ -66,3 +66,14 @@ def test_smoke_test_config_says_so(tmp_path):
     cfg = load_config({**CFG, "report": {"smoke_test": True}})
     text = build_report(cfg, tmp_path / "results", tmp_path / "index.html").read_text()
     assert '<div class="note">Smoke test' in text
+
+
+def test_figures_drawn_by_several_processes_are_those_drawn_by_one(tmp_path):
+    results = tmp_path / "results"
+    for p in P.sweep_points(CFG)[:3]:
+        report_store(P.field_path(results, p), p)
+        png_file(P.trajectory_path(results, p, "png"), p.name)
+    one = build_report(CFG, results, tmp_path / "one.html").read_text()
+    two = build_report(CFG, results, tmp_path / "two.html", processes=2).read_text()
+    runs = [re.search(r'<section id="runs">(.*?)</section>', t, re.S)[1] for t in (one, two)]
+    assert runs[0] == runs[1] and runs[0].count("data:image/png;base64,") == 3 * 3

@@ -12,10 +12,11 @@ rule report:
         report(P.pattern("report"), caption="../report/index.rst", category="Report"),
     log:
         "logs/report.log",
-    threads: 1
+    threads: config["threads"]["report"]
     resources:
         **cluster.job_resources(config, "report"),
     params:
         cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report", "reduced"),
     shell:
-        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} > {log:q} 2>&1" % P.RESULTS
+        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} "
+        "--processes {threads} > {log:q} 2>&1" % P.RESULTS

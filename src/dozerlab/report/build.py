@@ -22,11 +22,14 @@ from dozerlab.sweep import by_role, fmt_number, sweep_points
 TITLE = "dozerlab report"
 
 
-def build_report(cfg: Mapping[str, Any], results: str | Path, out: str | Path) -> Path:
-    """Write the report of the validated config's sweep, read from ``results``, to ``out``."""
+def build_report(
+    cfg: Mapping[str, Any], results: str | Path, out: str | Path, processes: int = 1
+) -> Path:
+    """Write the report of the validated config's sweep, read from ``results``, to ``out``;
+    ``processes`` draw the per-point figures side by side."""
     out = Path(out)
     check_output(out, html.REPORT_PAGE)
-    ctx = Context(cfg, Path(results), tuple(sweep_points(cfg)))
+    ctx = Context(cfg, Path(results), tuple(sweep_points(cfg)), processes)
     text = render_report(ctx)
     with atomic_output(out, html.REPORT_PAGE) as tmp:
         tmp.write_text(text, encoding="utf-8")

@@ -14,6 +14,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--results", default="results", help="the results directory (default: results)")
     p.add_argument("--out", default="results/report/index.html", help="the HTML file to write")
+    p.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        choices=range(1, 257),
+        metavar="N",
+        help="processes drawing the per-point figures, 1–256 (default 1; the workflow passes "
+        "threads.report)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -21,5 +30,5 @@ def _run(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
     from dozerlab.report.build import build_report
 
-    build_report(load_config(args.config), args.results, args.out)
+    build_report(load_config(args.config), args.results, args.out, args.processes)
     return 0

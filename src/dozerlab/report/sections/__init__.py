@@ -50,6 +50,8 @@ class Context:
     cfg: Mapping[str, Any]
     results: Path
     points: tuple[SweepPoint, ...]
+    #: Processes that draw the per-point figures (the report is the sweep's last job).
+    processes: int = 1
 
 
 def modules() -> list[ModuleType]:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
+from itertools import repeat
+
 from dozerlab.report import html
 from dozerlab.report.collect import point_figures
 from dozerlab.report.sections import Context
@@ -14,8 +17,12 @@ ORDER = 40
 
 def render(ctx: Context) -> str | None:
     blocks, missing = [], []
-    for p in ctx.points:
-        figures = point_figures(ctx.results, p)
+    if ctx.processes > 1 and len(ctx.points) > 1:
+        with ProcessPoolExecutor(min(ctx.processes, len(ctx.points))) as pool:
+            drawn = list(pool.map(point_figures, repeat(ctx.results), ctx.points))
+    else:
+        drawn = [point_figures(ctx.results, p) for p in ctx.points]
+    for p, figures in zip(ctx.points, drawn, strict=True):
         label = (
             f"{p.scenario}: speed {fmt_number(p.speed)} m/s, depth {fmt_number(p.depth)} m "
             f"({LABELS[p.role]})"
