@@ -18,15 +18,6 @@ if TYPE_CHECKING:
     from dozerlab.scenarios.trajectory import Trajectory
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig, path: str | Path) -> None:
     with atomic_output(path, FIGURE) as tmp:
         fig.savefig(tmp, format="png", dpi=120, metadata=png_metadata())
@@ -35,8 +26,11 @@ def _save(fig, path: str | Path) -> None:
 def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     """Write a PNG of the planned path: the raw and filtered height profile (thesis fig. 3.5–3.6),
     the tip trajectory over the filtered bed (fig. 3.7) and the velocity components (fig. 3.8)."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
+    from matplotlib.figure import Figure
+
+    # the object API, not pyplot: importing pyplot was a third of a trajectory job
+    fig = Figure(figsize=(9, 10))
+    axes = fig.subplots(3, 1, sharex=True)
     ax = axes[0]
     if traj.height_x.size:
         ax.plot(traj.height_x, traj.height_raw, lw=0.7, color="0.55", label="height field (raw)")
@@ -75,7 +69,6 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     ax.legend(loc="upper right")
     fig.tight_layout()
     _save(fig, path)
-    plt.close(fig)
 
 
 def bed_figure(bed: Bed) -> Figure:
