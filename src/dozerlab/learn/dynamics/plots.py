@@ -15,7 +15,7 @@ from dozerlab.runtime import FIGURE, atomic_output, png_metadata
 def rollout_curves(series: dict[str, dict[str, Any]], path: str | Path, title: str = "") -> Path:
     """Velocity and density error (relative, log scale) and predicted/true mass against the
     rollout step, one line per entry of ``series`` (each a metrics dict's ``rollout``)."""
-    plt, fig, axes = _figure(3, width=4.2)
+    fig, axes = _figure(3, width=4.2)
     for label, r in series.items():
         steps = np.arange(1, len(r["velocity"]) + 1)
         axes[0, 0].plot(steps, r["velocity"], label=label)
@@ -27,20 +27,16 @@ def rollout_curves(series: dict[str, dict[str, Any]], path: str | Path, title: s
     axes[0, 2].set(xlabel="rollout step", ylabel="mass in volume, predicted / true")
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(title)
-    return _save(plt, fig, Path(path))
+    return _save(fig, Path(path))
 
 
 def density_slices(fields: np.ndarray, steps: list[int], path: str | Path, title: str = "") -> Path:
     """Density (kg/m³) on the blade's centre plane (x forward, z up) of one rollout, predicted
     (top) next to true (bottom) at the given rollout steps; ``fields`` (2, L, X, Y, Z)."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, grid = plt.subplots(
-        2, len(steps), figsize=(3.0 * len(steps), 4.6), squeeze=False, layout="constrained"
-    )
+    fig = Figure(figsize=(3.0 * len(steps), 4.6), layout="constrained")
+    grid = fig.subplots(2, len(steps), squeeze=False)
     y = fields.shape[3] // 2
     hi = float(fields[:, :, :, y].max()) or 1.0
     for j, k in enumerate(steps):
@@ -54,5 +50,4 @@ def density_slices(fields: np.ndarray, steps: list[int], path: str | Path, title
     fig.suptitle(title)
     with atomic_output(path, FIGURE) as tmp:
         fig.savefig(tmp, dpi=110, format="png", metadata=png_metadata())
-    plt.close(fig)
     return Path(path)
