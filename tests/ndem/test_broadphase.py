@@ -7,6 +7,8 @@ from dozerlab.ndem.broadphase import (
     cell_indices,
     counting_sort,
     grid_layout,
+    pairs_parallel,
+    pairs_serial,
     slab_partition,
     sphere_pairs,
 )
@@ -52,6 +54,20 @@ def test_pairs_are_every_pair_within_reach_once():
     dist = np.linalg.norm(pos[pi] - pos[pj], axis=1)
     np.testing.assert_allclose(gap, radii[pi] + radii[pj] - dist)
     np.testing.assert_allclose(nrm, (pos[pi] - pos[pj]) / dist[:, None])  # from j to i
+
+
+@pytest.mark.parametrize("capacity", [1, 7, 10**5])
+def test_one_pass_pairs_equal_count_then_fill_whatever_the_first_buffer(capacity):
+    # capacity 1 and 7 overflow (the buffers double and the scan restarts), 10**5 does not
+    rng = np.random.default_rng(1)
+    pos, cells, start, dims = _sorted(rng.uniform(0, 1, (400, 3)), 0.06)
+    radii = rng.uniform(0.03, 0.05, 400)
+    reach = radii + 0.01
+    serial = pairs_serial(pos, radii, reach, cells, start, dims, capacity)
+    parallel = pairs_parallel(pos, radii, reach, cells, start, dims)
+    assert serial[0].size > 100
+    for a, b in zip(serial, parallel, strict=True):
+        np.testing.assert_array_equal(a, b)  # same pairs, same order, same bits
 
 
 def test_slabs_are_consecutive_whole_columns_balancing_particles():
