@@ -142,6 +142,15 @@ def main(argv: list[str] | None = None) -> None:
         "gap": gap,
         "lam": state.warm.lam,
         "force": world.force_on(blade),
+        "stats": np.array(
+            [
+                stats.contacts,
+                stats.speculative,
+                stats.max_overlap,
+                stats.max_overlap_fraction,
+                stats.residual,
+            ]
+        ),
     }
     if args.save:
         np.savez(args.save, **result)

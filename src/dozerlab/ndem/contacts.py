@@ -214,7 +214,7 @@ def assemble(
 
     ci = np.empty(mt, dtype=np.int64)
     cj = np.empty(mt, dtype=np.int64)
-    cd = np.zeros((mt, NCOL))
+    cd = np.empty((mt, NCOL))  # every column written below: no zeroing pass over the table
     gap = np.empty(mt)
     for k in prange(mt):
         s = src[k]
@@ -226,6 +226,8 @@ def assemble(
             cd[k, RJ] = radii[j] - 0.5 * max(g, 0.0)
             cd[k, MU] = 0.5 * (mu[i] + mu[j])
             cd[k, MUR] = rstar * 0.5 * (mur[i] + mur[j])
+            for a in range(6):
+                cd[k, VB + a] = 0.0  # VB, WB: no body
             imj, iij = invm[j], invI[j]
         else:
             t = s - mp
@@ -234,6 +236,7 @@ def assemble(
             for a in range(3):
                 cd[k, N0 + a] = bn[t, a]
             rstar = radii[i]
+            cd[k, RJ] = 0.0
             cd[k, MU] = bmu[b]
             cd[k, MUR] = rstar * mur[i]
             imj, iij = 0.0, 0.0
