@@ -4,14 +4,17 @@
         --bed /work/verify/H/results/beds/hill.npz \\
         --trajectory /work/verify/H/results/trajectories/hill/speed~1.0_depth~0.06.csv \\
         --start 150 --steps 30 --save /tmp/phases.npz      # or --compare /tmp/phases.npz
+    NUMBA_NUM_THREADS=1 python benchmarks/ndem_step_phases.py --build hill --length 2.0
 
-The run drives the blade along the trajectory from the bed as the ``simulate`` job does, for
+The simulate mode drives the blade along the trajectory from the bed as the ``simulate`` job does, for
 ``--start`` steps untimed, then times ``--steps`` steps phase by phase: each function the
 stepper calls is wrapped by a timer (outermost call only, so ``_reach`` inside ``_sort`` counts
 once), "other" is the rest of ``_advance`` (its own numpy and python). ``--save`` writes the
 final state (positions, velocities, spin in id order) and the last step's contacts and
 multipliers; ``--compare`` checks them array for array against such a file, written by other
-code, so a change can be shown bit-identical. Not a test: the figures depend on the machine.
+code, so a change can be shown bit-identical. The build mode times every step of
+``build_bed`` (bed length ``--length`` m, the rest of the config as given) and compares the
+built bed the same way. Not a test: the figures depend on the machine.
 """
 
 from __future__ import annotations
@@ -79,6 +82,7 @@ def instrument(totals: dict[str, float], last: dict[str, Any]) -> None:
         t0 = time.perf_counter()
         out = advance(*args)
         totals["whole step"] += time.perf_counter() - t0
+        totals["steps"] += 1
         return out
 
     stepper._advance = whole
@@ -86,9 +90,11 @@ def instrument(totals: dict[str, float], last: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bed", required=True)
-    ap.add_argument("--trajectory", required=True)
-    ap.add_argument("--config", default=None, help="default: the default config")
+    ap.add_argument("--bed", help="simulate mode: the bed (.npz)")
+    ap.add_argument("--trajectory", help="simulate mode: the blade's trajectory (.csv)")
+    ap.add_argument("--build", help="build mode: build this scenario's bed instead")
+    ap.add_argument("--length", type=float, default=2.0, help="build mode: bed length (m)")
+    ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--start", type=int, default=150, help="untimed steps to mid-push")
     ap.add_argument("--steps", type=int, default=30, help="timed steps")
     ap.add_argument("--threads", type=int, default=1)
@@ -100,39 +106,60 @@ def main(argv: list[str] | None = None) -> None:
 
     set_threads(args.threads)
     from dozerlab.config import load_config
+
+    config = load_config(args.config)
+    totals: dict[str, float] = defaultdict(float)
+    last: dict[str, Any] = {}
+    instrument(totals, last)
+    if args.build:
+        from dozerlab.scenarios.build import build_bed
+
+        bed = build_bed(
+            args.build, {**config, "bed": {**config["bed"], "length": args.length}}, progress=False
+        )
+        print(f"build {args.build}, {args.length} m: {bed.positions.shape[0]} spheres")
+        result = {"x": bed.positions, "r": bed.radii, "v": bed.velocities}
+    else:
+        result = _simulate(args, config, totals, last)
+    steps = int(totals.pop("steps"))
+    print(f"{steps} steps, {args.threads} thread(s)")
+    phases = [phase for _, _, phase in PHASES]
+    totals["other"] = totals["whole step"] - sum(totals[p] for p in phases)
+    for phase in [*phases, "other", "whole step"]:
+        print(f"{phase:16s} {1e3 * totals[phase] / steps:8.2f} ms/step")
+    outside = totals["whole step"] - totals["solve"]
+    print(f"{'outside solve':16s} {1e3 * outside / steps:8.2f} ms/step, {outside:.2f} s in all")
+    if args.save:
+        np.savez(args.save, **result)
+    if args.compare:
+        with np.load(args.compare, allow_pickle=False) as ref:
+            bad = [k for k in result if k not in ref or not np.array_equal(result[k], ref[k])]
+        print("bit-identical to", args.compare if not bad else f"DIFFERENT in {bad}")
+
+
+def _simulate(
+    args: argparse.Namespace, config: dict[str, Any], totals: dict[str, float], last: dict[str, Any]
+) -> dict[str, np.ndarray]:
+    """Drive the blade ``args.start`` steps, time ``args.steps``; the final state's arrays."""
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.blade import add_blade
     from dozerlab.scenarios.build import make_world
     from dozerlab.scenarios.trajectory import Trajectory
 
-    config = load_config(args.config)
+    if not (args.bed and args.trajectory):
+        raise SystemExit("simulate mode needs --bed and --trajectory (or use --build)")
     traj, bed = Trajectory.load_csv(args.trajectory), Bed.load(args.bed)
     world, _ = make_world(bed, config)
     blade = add_blade(world, traj.position[0], config)
-    totals: dict[str, float] = defaultdict(float)
-    last: dict[str, Any] = {}
-    instrument(totals, last)
     for i in range(args.start + args.steps):
         if i == args.start:
             totals.clear()
         world.set_velocity(blade, traj.velocity[min(i, traj.steps - 1)])
         stats = world.step()
     state = world.state
-    print(
-        f"{state.n} spheres, {stats.contacts + stats.speculative} contacts, "
-        f"{args.threads} thread(s), steps {args.start}..{args.start + args.steps}"
-    )
-    phases = [phase for _, _, phase in PHASES]
-    accounted = sum(totals[p] for p in phases)
-    totals["other"] = totals["whole step"] - accounted
-    for phase in [*phases, "other", "whole step"]:
-        print(f"{phase:16s} {1e3 * totals[phase] / args.steps:8.2f} ms/step")
-    print(
-        f"{'outside solve':16s} {1e3 * (totals['whole step'] - totals['solve']) / args.steps:8.2f}"
-    )
-
+    print(f"{state.n} spheres, {stats.contacts + stats.speculative} contacts mid-push")
     ci, cj, cd, gap, _ = last["assemble"]
-    result = {
+    return {
         "x": state.public(state.x),
         "v": state.public(state.v),
         "w": state.public(state.w),
@@ -152,12 +179,6 @@ def main(argv: list[str] | None = None) -> None:
             ]
         ),
     }
-    if args.save:
-        np.savez(args.save, **result)
-    if args.compare:
-        with np.load(args.compare, allow_pickle=False) as ref:
-            bad = [k for k in result if not np.array_equal(result[k], ref[k])]
-        print("bit-identical to", args.compare if not bad else f"DIFFERENT in {bad}")
 
 
 if __name__ == "__main__":

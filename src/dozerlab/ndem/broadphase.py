@@ -20,14 +20,31 @@ def grid_layout(
     The edge starts at ``2·reach_max`` (the largest contact distance) and grows until the grid
     has at most ``max_cells`` cells, so one escaped particle cannot blow up the memory.
     """
-    lo = pos.min(axis=0) - 1e-9
-    extent = pos.max(axis=0) - lo + 1e-9
+    lo, hi = bounds(pos)
+    lo -= 1e-9
+    extent = hi - lo + 1e-9
     cell = max(2.0 * reach_max, 1e-12)
     while True:
         dims = np.maximum(np.ceil(extent / cell).astype(np.int64), 1)
         if int(np.prod(dims)) <= max_cells:
             return lo, cell, dims
         cell *= 1.5
+
+
+@njit(cache=True)
+def bounds(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest coordinate (3,) each of ``pos`` (N ≥ 1, 3), as numpy's min and max
+    along axis 0 (a NaN wins), in one pass over the rows."""
+    lo = pos[0].copy()
+    hi = pos[0].copy()
+    for i in range(1, pos.shape[0]):
+        for a in range(3):
+            v = pos[i, a]
+            if lo[a] == lo[a] and (v < lo[a] or v != v):
+                lo[a] = v
+            if hi[a] == hi[a] and (v > hi[a] or v != v):
+                hi[a] = v
+    return lo, hi
 
 
 @njit(cache=True)

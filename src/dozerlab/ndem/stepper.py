@@ -52,10 +52,18 @@ def _reach(state: WorldState, p: Parameters) -> np.ndarray:
     Pairs that may close their gap within the step get a speculative row; the motion term is
     capped at the largest radius so one fast particle cannot inflate the grid.
     """
-    h = p.dt
-    speed = np.sqrt(((state.v + h * p.gravity) ** 2).sum(axis=1))
-    rmax = float(state.r.max())
-    return state.r + 0.5 * p.contact_margin * float(state.r.min()) + np.minimum(h * speed, rmax)
+    margin = 0.5 * p.contact_margin * float(state.r.min())
+    return _reach_of(state.v, state.r, p.dt, p.dt * p.gravity, margin, float(state.r.max()))
+
+
+@njit(cache=True)
+def _reach_of(v, r, h, hg, margin, rmax):  # type: ignore[no-untyped-def]
+    """:func:`_reach` in one pass: r + margin + min(h·|v + h·g|, rmax), (N,) m."""
+    out = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        a, b, c = v[i, 0] + hg[0], v[i, 1] + hg[1], v[i, 2] + hg[2]
+        out[i] = r[i] + margin + min(h * np.sqrt(a * a + b * b + c * c), rmax)
+    return out
 
 
 def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
