@@ -85,7 +85,7 @@ def instrument(totals: dict[str, float], last: dict[str, Any]) -> None:
         totals["steps"] += 1
         return out
 
-    stepper._advance = whole
+    stepper._advance = whole  # type: ignore[assignment]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
             args.build, {**config, "bed": {**config["bed"], "length": args.length}}, progress=False
         )
         print(f"build {args.build}, {args.length} m: {bed.positions.shape[0]} spheres")
-        result = {"x": bed.positions, "r": bed.radii, "v": bed.velocities}
+        result: dict[str, Any] = {"x": bed.positions, "r": bed.radii, "v": bed.velocities}
     else:
         result = _simulate(args, config, totals, last)
     steps = int(totals.pop("steps"))
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
 
 def _simulate(
     args: argparse.Namespace, config: dict[str, Any], totals: dict[str, float], last: dict[str, Any]
-) -> dict[str, np.ndarray]:
+) -> dict[str, Any]:
     """Drive the blade ``args.start`` steps, time ``args.steps``; the final state's arrays."""
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.blade import add_blade

@@ -20,7 +20,7 @@ SPHERE_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
 
 
 @njit(cache=True)
-def _gather(perm, x, v, w, r, m, mu, mur, ids):  # type: ignore[no-untyped-def]
+def _gather(perm, x, v, w, r, m, mu, mur, ids):
     """Each array's rows ``perm`` (M,) in that order, as new arrays (x[perm], v[perm], ...)."""
     n = perm.shape[0]
     x2, v2, w2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))

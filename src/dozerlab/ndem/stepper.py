@@ -57,7 +57,7 @@ def _reach(state: WorldState, p: Parameters) -> np.ndarray:
 
 
 @njit(cache=True)
-def _reach_of(v, r, h, hg, margin, rmax):  # type: ignore[no-untyped-def]
+def _reach_of(v, r, h, hg, margin, rmax):
     """:func:`_reach` in one pass: r + margin + min(h·|v + h·g|, rmax), (N,) m."""
     out = np.empty(r.shape[0])
     for i in range(r.shape[0]):
@@ -174,7 +174,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
 
 
 @njit(cache=True)
-def _overlaps(r, ci, cj, gap):  # type: ignore[no-untyped-def]
+def _overlaps(r, ci, cj, gap):
     """One pass over the contacts: (first contact with the largest overlap over the smaller
     radius, or -1; that fraction, 0 if none; contacts with gap > 0; largest gap, m, ≥ 0).
     A NaN is the largest (as numpy's max and argmax take it)."""
