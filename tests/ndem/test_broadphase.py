@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from dozerlab.ndem.broadphase import (
+    bounds,
     cell_indices,
     counting_sort,
     grid_layout,
@@ -23,6 +24,18 @@ def test_grid_cells_are_twice_the_reach_until_the_cell_cap():
     # at most 10 cells: 0.1 m (150 cells) → 0.15 (42) → 0.225 (20) → 0.3375 m (3 × 2 × 1)
     _, coarse, dims = grid_layout(pos, 0.05, 10)
     assert coarse == pytest.approx(0.1 * 1.5**3) and dims.tolist() == [3, 2, 1]
+
+
+def test_bounds_are_numpys_min_and_max_and_refuse_no_points():
+    pos = np.random.default_rng(4).normal(size=(50, 3))
+    lo, hi = bounds(pos)
+    np.testing.assert_array_equal(lo, pos.min(axis=0))
+    np.testing.assert_array_equal(hi, pos.max(axis=0))
+    pos[10, 1] = np.nan
+    lo, hi = bounds(pos)
+    assert np.isnan(lo[1]) and np.isnan(hi[1]) and lo[0] == pos[:, 0].min()
+    with pytest.raises(ValueError, match="empty"):
+        bounds(pos[:0])
 
 
 def test_counting_sort_is_stable_with_offsets():

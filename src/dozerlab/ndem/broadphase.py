@@ -35,6 +35,8 @@ def grid_layout(
 def bounds(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Smallest and largest coordinate (3,) each of ``pos`` (N ≥ 1, 3), as numpy's min and max
     along axis 0 (a NaN wins), in one pass over the rows."""
+    if pos.shape[0] == 0:
+        raise ValueError("bounds of an empty point set")
     lo = pos[0].copy()
     hi = pos[0].copy()
     for i in range(1, pos.shape[0]):

@@ -68,7 +68,9 @@ class WorldState:
         return int(self.id.shape[0])
 
     def reorder(self, index: np.ndarray) -> None:
-        """Keep the slots ``index`` (a permutation, or a boolean mask) in that order."""
+        """Keep the slots ``index`` (a permutation, or a boolean mask) in that order.
+
+        An int64 index must name slots in 0..N-1 (IndexError otherwise, no wrap-around)."""
         floats = (self.x, self.v, self.w, self.r, self.m, self.mu, self.mur)
         if index.dtype == np.int64 and all(a.dtype == np.float64 for a in floats):
             # The per-step re-sort: every field gathered in one pass over the permutation.
