@@ -4,9 +4,12 @@ import numpy as np
 import pytest
 
 from dozerlab.ndem.broadphase import (
+    bounds,
     cell_indices,
     counting_sort,
     grid_layout,
+    pairs_parallel,
+    pairs_serial,
     slab_partition,
     sphere_pairs,
 )
@@ -21,6 +24,18 @@ def test_grid_cells_are_twice_the_reach_until_the_cell_cap():
     # at most 10 cells: 0.1 m (150 cells) → 0.15 (42) → 0.225 (20) → 0.3375 m (3 × 2 × 1)
     _, coarse, dims = grid_layout(pos, 0.05, 10)
     assert coarse == pytest.approx(0.1 * 1.5**3) and dims.tolist() == [3, 2, 1]
+
+
+def test_bounds_are_numpys_min_and_max_and_refuse_no_points():
+    pos = np.random.default_rng(4).normal(size=(50, 3))
+    lo, hi = bounds(pos)
+    np.testing.assert_array_equal(lo, pos.min(axis=0))
+    np.testing.assert_array_equal(hi, pos.max(axis=0))
+    pos[10, 1] = np.nan
+    lo, hi = bounds(pos)
+    assert np.isnan(lo[1]) and np.isnan(hi[1]) and lo[0] == pos[:, 0].min()
+    with pytest.raises(ValueError, match="empty"):
+        bounds(pos[:0])
 
 
 def test_counting_sort_is_stable_with_offsets():
@@ -52,6 +67,20 @@ def test_pairs_are_every_pair_within_reach_once():
     dist = np.linalg.norm(pos[pi] - pos[pj], axis=1)
     np.testing.assert_allclose(gap, radii[pi] + radii[pj] - dist)
     np.testing.assert_allclose(nrm, (pos[pi] - pos[pj]) / dist[:, None])  # from j to i
+
+
+@pytest.mark.parametrize("capacity", [1, 7, 10**5])
+def test_one_pass_pairs_equal_count_then_fill_whatever_the_first_buffer(capacity):
+    # capacity 1 and 7 overflow (the buffers double and the scan restarts), 10**5 does not
+    rng = np.random.default_rng(1)
+    pos, cells, start, dims = _sorted(rng.uniform(0, 1, (400, 3)), 0.06)
+    radii = rng.uniform(0.03, 0.05, 400)
+    reach = radii + 0.01
+    serial = pairs_serial(pos, radii, reach, cells, start, dims, capacity)
+    parallel = pairs_parallel(pos, radii, reach, cells, start, dims)
+    assert serial[0].size > 100
+    for a, b in zip(serial, parallel, strict=True):
+        np.testing.assert_array_equal(a, b)  # same pairs, same order, same bits
 
 
 def test_slabs_are_consecutive_whole_columns_balancing_particles():

@@ -4,7 +4,15 @@ import numpy as np
 import pytest
 
 from dozerlab.ndem.bodies import Bodies
-from dozerlab.ndem.contacts import N0, NCOL, RI, body_contacts, body_loads
+from dozerlab.ndem.contacts import (
+    N0,
+    NCOL,
+    RI,
+    body_contacts,
+    body_contacts_parallel,
+    body_contacts_serial,
+    body_loads,
+)
 
 R = 0.1
 
@@ -65,3 +73,27 @@ def test_loads_are_the_impulses_over_the_step_with_their_moments():
     np.testing.assert_allclose(force, [[0, 0, 0], [0, 0, -1.0]])  # body 1 (cj = -2) pushed down
     # about body 1's centre: the contact point (0.3, 0, 0) × (0, 0, -1) N
     np.testing.assert_allclose(torque, [[0, 0, 0], [0, 0.3, 0]])
+
+
+def test_one_pass_body_contacts_equal_count_then_fill():
+    b = Bodies()
+    b.add_plane((0, 0, 0.0), (0, 0, 1), 0.5)
+    b.add_plane((1.0, 0, 0), (-1, 0, 0), 0.5)
+    b.add_box((0.5, 0.5, 0.3), (0.2, 0.1, 0.3), False, 0.5, None)
+    rng = np.random.default_rng(2)
+    n = 2000
+    args = (
+        rng.uniform(0, 1, (n, 3)),
+        rng.uniform(0.02, 0.05, n),
+        rng.uniform(0.0, 0.02, n),
+        b.kind,
+        b.center,
+        b.rotations(),
+        b.half,
+        b.normal,
+    )
+    serial = body_contacts_serial(*args)
+    parallel = body_contacts_parallel(*args)
+    assert set(serial[1].tolist()) == {0, 1, 2}  # every body has hits
+    for x, y in zip(serial, parallel, strict=True):
+        np.testing.assert_array_equal(x, y)

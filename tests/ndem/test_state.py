@@ -1,6 +1,7 @@
 """A World's state: spheres in slot order, mapped to and from sphere ids."""
 
 import numpy as np
+import pytest
 
 from dozerlab.ndem.state import SPHERE_FIELDS, WorldState
 
@@ -38,3 +39,14 @@ def test_a_mask_drops_slots_and_append_adds_at_the_end():
     assert s.id.tolist() == [0, 2] and s.x.shape == (2, 3)
     s.append(**{f: getattr(s, f)[:1] for f in SPHERE_FIELDS})
     assert s.n == 3 and s.r.tolist() == [0.1, 0.3, 0.1]
+
+
+def test_the_one_pass_gather_is_numpy_fancy_indexing_and_checks_the_slots():
+    s = _three()
+    ref = {f: getattr(s, f)[[1, 2, 0]] for f in SPHERE_FIELDS}
+    s.reorder(np.array([1, 2, 0]))
+    for f in SPHERE_FIELDS:
+        np.testing.assert_array_equal(getattr(s, f), ref[f])
+        assert getattr(s, f).dtype == ref[f].dtype
+    with pytest.raises(IndexError, match="slot out of range"):
+        s.reorder(np.array([0, 1, 3]))

@@ -231,3 +231,22 @@ def test_advance_without_spheres_moves_the_bodies_and_the_clock():
     assert (state.step_count, state.time) == (1, 0.02)
     np.testing.assert_allclose(bodies.center[blade], [0.01, 0.0, 0.0])
     np.testing.assert_array_equal(bodies.force, np.zeros((1, 3)))
+
+
+def test_overlap_pass_matches_numpy_on_pairs_bodies_and_nan():
+    from dozerlab.ndem.stepper import _overlaps
+
+    rng = np.random.default_rng(3)
+    r = rng.uniform(0.02, 0.05, 50)
+    ci = rng.integers(0, 50, 400)
+    cj = np.where(rng.random(400) < 0.3, -rng.integers(1, 4, 400), rng.integers(0, 50, 400))
+    gap = rng.uniform(-0.01, 0.01, 400)
+    rmin = np.where(cj >= 0, np.minimum(r[ci], r[np.maximum(cj, 0)]), r[ci])
+    frac = np.maximum(gap, 0.0) / rmin
+    k, f, touching, g = _overlaps(r, ci, cj, gap)
+    assert (k, f) == (frac.argmax(), frac.max())  # the first largest, bit for bit
+    assert touching == int((gap > 0).sum()) and g == gap.max()
+    assert _overlaps(r, ci[:0], cj[:0], gap[:0]) == (-1, 0.0, 0, 0.0)
+    gap[[7, 9]] = np.nan  # a NaN wins, the first one, as in numpy
+    k, f, _, g = _overlaps(r, ci, cj, gap)
+    assert k == 7 and np.isnan(f) and np.isnan(g)

@@ -7,6 +7,7 @@ least the largest contact distance, so every pair lies in the same or an adjacen
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -19,14 +20,33 @@ def grid_layout(
     The edge starts at ``2·reach_max`` (the largest contact distance) and grows until the grid
     has at most ``max_cells`` cells, so one escaped particle cannot blow up the memory.
     """
-    lo = pos.min(axis=0) - 1e-9
-    extent = pos.max(axis=0) - lo + 1e-9
+    lo, hi = bounds(pos)
+    lo -= 1e-9
+    extent = hi - lo + 1e-9
     cell = max(2.0 * reach_max, 1e-12)
     while True:
         dims = np.maximum(np.ceil(extent / cell).astype(np.int64), 1)
         if int(np.prod(dims)) <= max_cells:
             return lo, cell, dims
         cell *= 1.5
+
+
+@njit(cache=True)
+def bounds(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest coordinate (3,) each of ``pos`` (N ≥ 1, 3), as numpy's min and max
+    along axis 0 (a NaN wins), in one pass over the rows."""
+    if pos.shape[0] == 0:
+        raise ValueError("bounds of an empty point set")
+    lo = pos[0].copy()
+    hi = pos[0].copy()
+    for i in range(1, pos.shape[0]):
+        for a in range(3):
+            v = pos[i, a]
+            if lo[a] == lo[a] and (v < lo[a] or v != v):
+                lo[a] = v
+            if hi[a] == hi[a] and (v > hi[a] or v != v):
+                hi[a] = v
+    return lo, hi
 
 
 @njit(cache=True)
@@ -61,51 +81,55 @@ def counting_sort(keys: np.ndarray, nkeys: int) -> tuple[np.ndarray, np.ndarray]
 
 @njit(cache=True)
 def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out_g, base):
-    """Count (``base`` < 0) or write the pairs (i, j > i) of particle i; returns the count."""
+    """Count (``base`` < 0) or write the pairs (i, j > i) of particle i; returns the count.
+
+    Writes go to ``base`` onwards and stop at the end of ``out_j`` (the count goes on), so a
+    caller whose buffer was too small sees ``base + count > len(out_j)`` and can retry.
+    """
     c = cells[i]
     nyz = dims[1] * dims[2]
     ix = c // nyz
     iy = (c // dims[2]) % dims[1]
     iz = c % dims[2]
+    # The three z-neighbouring cells of an (x, y) column are consecutive slots: one range per
+    # column. Columns before i's own (x-major) hold only cells < c, whose pairs j < i are
+    # found from the other side; i's own column starts after i.
+    jz0 = max(iz - 1, 0)
+    jz1 = min(iz + 1, dims[2] - 1)
+    x0, x1, x2, ri = pos[i, 0], pos[i, 1], pos[i, 2], reach[i]
     count = 0
-    for dx in range(-1, 2):
+    for dx in range(2):
         jx = ix + dx
-        if jx < 0 or jx >= dims[0]:
+        if jx >= dims[0]:
             continue
         for dy in range(-1, 2):
             jy = iy + dy
-            if jy < 0 or jy >= dims[1]:
+            if jy < 0 or jy >= dims[1] or (dx == 0 and dy < 0):
                 continue
-            for dz in range(-1, 2):
-                jz = iz + dz
-                if jz < 0 or jz >= dims[2]:
+            col = (jx * dims[1] + jy) * dims[2]
+            j0 = i + 1 if dx == 0 and dy == 0 else start[col + jz0]
+            for j in range(j0, start[col + jz1 + 1]):
+                d0 = x0 - pos[j, 0]
+                d1 = x1 - pos[j, 1]
+                d2 = x2 - pos[j, 2]
+                lim = ri + reach[j]
+                d2sum = d0 * d0 + d1 * d1 + d2 * d2
+                if d2sum >= lim * lim:
                     continue
-                cj = (jx * dims[1] + jy) * dims[2] + jz
-                if cj < c:
-                    continue
-                j0 = start[cj] if cj != c else i + 1
-                for j in range(j0, start[cj + 1]):
-                    d0 = pos[i, 0] - pos[j, 0]
-                    d1 = pos[i, 1] - pos[j, 1]
-                    d2 = pos[i, 2] - pos[j, 2]
-                    lim = reach[i] + reach[j]
-                    d2sum = d0 * d0 + d1 * d1 + d2 * d2
-                    if d2sum >= lim * lim:
-                        continue
-                    if base >= 0:
-                        k = base + count
-                        dist = np.sqrt(d2sum)
-                        out_j[k] = j
-                        if dist > 0.0:
-                            out_n[k, 0] = d0 / dist
-                            out_n[k, 1] = d1 / dist
-                            out_n[k, 2] = d2 / dist
-                        else:
-                            out_n[k, 0] = 0.0
-                            out_n[k, 1] = 0.0
-                            out_n[k, 2] = 1.0
-                        out_g[k] = radii[i] + radii[j] - dist
-                    count += 1
+                k = base + count
+                if base >= 0 and k < out_j.shape[0]:
+                    dist = np.sqrt(d2sum)
+                    out_j[k] = j
+                    if dist > 0.0:
+                        out_n[k, 0] = d0 / dist
+                        out_n[k, 1] = d1 / dist
+                        out_n[k, 2] = d2 / dist
+                    else:
+                        out_n[k, 0] = 0.0
+                        out_n[k, 1] = 0.0
+                        out_n[k, 2] = 1.0
+                    out_g[k] = radii[i] + radii[j] - dist
+                count += 1
     return count
 
 
@@ -127,7 +151,6 @@ def hit_buffers(
     )
 
 
-@njit(parallel=True, cache=True)
 def sphere_pairs(
     pos: np.ndarray,
     radii: np.ndarray,
@@ -140,7 +163,46 @@ def sphere_pairs(
 
     Returns i (M,), j (M,) with j > i, the unit normal (M, 3) pointing from j to i and the
     overlap g (M,) in m (negative: a gap). Pairs come out ordered by i, then by cell of j.
+    On one numba thread the grid is scanned once into a growing buffer; on more, twice (count,
+    then fill at known offsets) so the threads can write independently. Both give the same
+    arrays.
     """
+    if numba.get_num_threads() == 1:
+        return pairs_serial(pos, radii, reach, cells, start, dims, 4 * pos.shape[0] + 64)
+    return pairs_parallel(pos, radii, reach, cells, start, dims)
+
+
+@njit(cache=True)
+def pairs_serial(pos, radii, reach, cells, start, dims, capacity):
+    """:func:`sphere_pairs` in one pass into buffers of ``capacity`` (≥ 1) pairs, doubled and
+    rescanned from the start on the rare overflow."""
+    while True:
+        pi = np.empty(capacity, dtype=np.int64)
+        pj = np.empty(capacity, dtype=np.int64)
+        nrm = np.empty((capacity, 3))
+        gap = np.empty(capacity)
+        m = _fill_pairs(pos, radii, reach, cells, start, dims, pi, pj, nrm, gap)
+        if m >= 0:
+            return pi[:m], pj[:m], nrm[:m], gap[:m]
+        capacity *= 2
+
+
+@njit(cache=True)
+def _fill_pairs(pos, radii, reach, cells, start, dims, pi, pj, nrm, gap):
+    """Write all pairs into the buffers; returns their number, or -1 if they did not fit."""
+    m = 0
+    for i in range(pos.shape[0]):
+        count = _scan_neighbours(i, pos, radii, reach, cells, start, dims, pj, nrm, gap, m)
+        if m + count > pj.shape[0]:
+            return -1
+        pi[m : m + count] = i
+        m += count
+    return m
+
+
+@njit(parallel=True, cache=True)
+def pairs_parallel(pos, radii, reach, cells, start, dims):
+    """:func:`sphere_pairs` by count, then fill, each pass over the spheres in parallel."""
     n = pos.shape[0]
     dummy_j = np.empty(0, dtype=np.int64)
     dummy_n = np.empty((0, 3))

@@ -7,6 +7,7 @@ rows' constants live in one (Nc, NCOL) float64 table, laid out per contact for c
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -31,7 +32,7 @@ WB = 15  # body angular velocity (3)
 NCOL = 18
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _body_test(x, r, margin, kind, c, rot, ext, nrm):
     """Overlap (m) of a sphere (x, r) with one body and the normal out of the body (3 floats)."""
     dx0, dx1, dx2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
@@ -68,15 +69,67 @@ def _body_test(x, r, margin, kind, c, rot, ext, nrm):
     )
 
 
-@njit(parallel=True, cache=True)
 def body_contacts(
-    pos, radii, margin, kind, bpos, brot, bext, bnormal
+    pos: np.ndarray,
+    radii: np.ndarray,
+    margin: np.ndarray,
+    kind: np.ndarray,
+    bpos: np.ndarray,
+    brot: np.ndarray,
+    bext: np.ndarray,
+    bnormal: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
 
     Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m,
-    ordered by slot, then body.
+    ordered by slot, then body. On one numba thread the spheres are tested once; on more, twice (count, then fill); both give the same arrays.
     """
+    args = (pos, radii, margin, kind, bpos, brot, bext, bnormal)
+    if numba.get_num_threads() == 1:
+        return body_contacts_serial(*args)
+    return body_contacts_parallel(*args)
+
+
+@njit(cache=True)
+def body_contacts_serial(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+    """:func:`body_contacts` in one pass into buffers sized for every sphere touching every
+    body (memory that is reserved, not touched, beyond the hits)."""
+    n = pos.shape[0]
+    nb = kind.shape[0]
+    si = np.empty(n * nb, dtype=np.int64)
+    sb = np.empty(n * nb, dtype=np.int64)
+    nrm = np.empty((n * nb, 3))
+    gap = np.empty(n * nb)
+    bound = np.sqrt(bext[:, 0] * bext[:, 0] + bext[:, 1] * bext[:, 1] + bext[:, 2] * bext[:, 2])
+    k = 0
+    for i in range(n):
+        x0, x1, x2, ri, mi = pos[i, 0], pos[i, 1], pos[i, 2], radii[i], margin[i]
+        for b in range(nb):
+            # The plane test and the box's bounding-sphere cull of _body_test, on scalars:
+            # only boxes' near spheres pay for the full test.
+            d0, d1, d2 = x0 - bpos[b, 0], x1 - bpos[b, 1], x2 - bpos[b, 2]
+            if kind[b] == PLANE:
+                n0, n1, n2 = bnormal[b, 0], bnormal[b, 1], bnormal[b, 2]
+                g = ri - (d0 * n0 + d1 * n1 + d2 * n2)
+            else:
+                reach = ri + mi + bound[b]
+                if d0 * d0 + d1 * d1 + d2 * d2 > reach * reach:
+                    continue
+                g, n0, n1, n2 = _body_test(
+                    pos[i], ri, mi, kind[b], bpos[b], brot[b], bext[b], bnormal[b]
+                )
+            if g > -mi:
+                si[k] = i
+                sb[k] = b
+                nrm[k, 0], nrm[k, 1], nrm[k, 2] = n0, n1, n2
+                gap[k] = g
+                k += 1
+    return si[:k], sb[:k], nrm[:k], gap[:k]
+
+
+@njit(parallel=True, cache=True)
+def body_contacts_parallel(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+    """:func:`body_contacts` by count, then fill, each pass over the spheres in parallel."""
     n = pos.shape[0]
     nb = kind.shape[0]
     counts = np.zeros(n + 1, dtype=np.int64)
@@ -161,7 +214,7 @@ def assemble(
 
     ci = np.empty(mt, dtype=np.int64)
     cj = np.empty(mt, dtype=np.int64)
-    cd = np.zeros((mt, NCOL))
+    cd = np.empty((mt, NCOL))  # every column written below: no zeroing pass over the table
     gap = np.empty(mt)
     for k in prange(mt):
         s = src[k]
@@ -173,6 +226,8 @@ def assemble(
             cd[k, RJ] = radii[j] - 0.5 * max(g, 0.0)
             cd[k, MU] = 0.5 * (mu[i] + mu[j])
             cd[k, MUR] = rstar * 0.5 * (mur[i] + mur[j])
+            for a in range(6):
+                cd[k, VB + a] = 0.0  # VB, WB: no body
             imj, iij = invm[j], invI[j]
         else:
             t = s - mp
@@ -181,6 +236,7 @@ def assemble(
             for a in range(3):
                 cd[k, N0 + a] = bn[t, a]
             rstar = radii[i]
+            cd[k, RJ] = 0.0
             cd[k, MU] = bmu[b]
             cd[k, MUR] = rstar * mur[i]
             imj, iij = 0.0, 0.0

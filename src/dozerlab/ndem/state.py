@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from dozerlab.ndem.warmstart import WarmStart
 
@@ -16,6 +17,25 @@ from dozerlab.ndem.warmstart import WarmStart
 # velocity (N, 3) rad/s, radius (N,) m, mass (N,) kg, friction μ (N,), rolling resistance (N,),
 # sphere id (N,) int64.
 SPHERE_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
+
+
+@njit(cache=True)
+def _gather(perm, x, v, w, r, m, mu, mur, ids):
+    """Each array's rows ``perm`` (M,) in that order, as new arrays (x[perm], v[perm], ...)."""
+    n = perm.shape[0]
+    x2, v2, w2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    r2, m2, mu2, mur2 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    ids2 = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        i = perm[k]
+        if i < 0 or i >= x.shape[0]:
+            raise IndexError("reorder: slot out of range")
+        for a in range(3):
+            x2[k, a] = x[i, a]
+            v2[k, a] = v[i, a]
+            w2[k, a] = w[i, a]
+        r2[k], m2[k], mu2[k], mur2[k], ids2[k] = r[i], m[i], mu[i], mur[i], ids[i]
+    return x2, v2, w2, r2, m2, mu2, mur2, ids2
 
 
 def _vectors() -> np.ndarray:
@@ -48,7 +68,16 @@ class WorldState:
         return int(self.id.shape[0])
 
     def reorder(self, index: np.ndarray) -> None:
-        """Keep the slots ``index`` (a permutation, or a boolean mask) in that order."""
+        """Keep the slots ``index`` (a permutation, or a boolean mask) in that order.
+
+        An int64 index must name slots in 0..N-1 (IndexError otherwise, no wrap-around)."""
+        floats = (self.x, self.v, self.w, self.r, self.m, self.mu, self.mur)
+        if index.dtype == np.int64 and all(a.dtype == np.float64 for a in floats):
+            # The per-step re-sort: every field gathered in one pass over the permutation.
+            (self.x, self.v, self.w, self.r, self.m, self.mu, self.mur, self.id) = _gather(
+                index, self.x, self.v, self.w, self.r, self.m, self.mu, self.mur, self.id
+            )
+            return
         for f in SPHERE_FIELDS:
             setattr(self, f, np.ascontiguousarray(getattr(self, f)[index]))
 

@@ -7,6 +7,7 @@ from contextlib import contextmanager
 
 import numba
 import numpy as np
+from numba import njit
 
 from dozerlab.ndem import broadphase, contacts, solver
 from dozerlab.ndem.bodies import Bodies
@@ -32,14 +33,17 @@ def _serial_if(small: bool) -> Iterator[None]:
         numba.set_num_threads(threads)
 
 
-def _sort(state: WorldState, p: Parameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Re-sort the spheres by grid cell; returns the cell of each slot, cell offsets and dims."""
+def _sort(
+    state: WorldState, p: Parameters
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Re-sort the spheres by grid cell; returns the cell of each slot, cell offsets, dims and
+    each slot's reach (:func:`_reach`, the same values as computed after the sort)."""
     reach = _reach(state, p)
     lo, cell, dims = broadphase.grid_layout(state.x, float(reach.max()), max(8 * state.n, 4096))
     cells = broadphase.cell_indices(state.x, lo, cell, dims)
     perm, start = broadphase.counting_sort(cells, int(np.prod(dims)))
     state.reorder(perm)
-    return cells[perm], start, dims
+    return cells[perm], start, dims, reach[perm]
 
 
 def _reach(state: WorldState, p: Parameters) -> np.ndarray:
@@ -48,10 +52,18 @@ def _reach(state: WorldState, p: Parameters) -> np.ndarray:
     Pairs that may close their gap within the step get a speculative row; the motion term is
     capped at the largest radius so one fast particle cannot inflate the grid.
     """
-    h = p.dt
-    speed = np.sqrt(((state.v + h * p.gravity) ** 2).sum(axis=1))
-    rmax = float(state.r.max())
-    return state.r + 0.5 * p.contact_margin * float(state.r.min()) + np.minimum(h * speed, rmax)
+    margin = 0.5 * p.contact_margin * float(state.r.min())
+    return _reach_of(state.v, state.r, p.dt, p.dt * p.gravity, margin, float(state.r.max()))
+
+
+@njit(cache=True)
+def _reach_of(v, r, h, hg, margin, rmax):
+    """:func:`_reach` in one pass: r + margin + min(h·|v + h·g|, rmax), (N,) m."""
+    out = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        a, b, c = v[i, 0] + hg[0], v[i, 1] + hg[1], v[i, 2] + hg[2]
+        out[i] = r[i] + margin + min(h * np.sqrt(a * a + b * b + c * c), rmax)
+    return out
 
 
 def advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
@@ -74,11 +86,10 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
 
     if not solver.all_finite(state.x, state.v, state.w):
         _raise_non_finite(state, "before")
-    cells, start, dims = _sort(state, p)
+    cells, start, dims, reach = _sort(state, p)
     slab_of_column = broadphase.slab_partition(start, dims, p.slabs)
     n_slabs = int(slab_of_column.max()) + 1
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
-    reach = _reach(state, p)
     pairs = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     hits = contacts.body_contacts(
@@ -116,7 +127,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         upsilon,
         estar,
     )
-    frac = _check_overlap(state, p, ci, cj, gap)
+    frac_max, touching, gap_max = _check_overlap(state, p, ci, cj, gap)
 
     state.v += h * p.gravity
     if p.warm_start:
@@ -150,31 +161,48 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     bodies.integrate(h)
     state.time += h
     state.step_count += 1
-    touching = gap > 0.0
     return StepStats(
         step=state.step_count,
         time=state.time,
-        contacts=int(touching.sum()),
-        speculative=int((~touching).sum()),
+        contacts=touching,
+        speculative=ci.shape[0] - touching,
         residual=float(residual),
-        max_overlap=float(gap.max(initial=0.0)),
-        max_overlap_fraction=float(frac.max(initial=0.0)),
+        max_overlap=gap_max,
+        max_overlap_fraction=frac_max,
         iterations=int(sweeps),
     )
 
 
+@njit(cache=True)
+def _overlaps(r, ci, cj, gap):
+    """One pass over the contacts: (first contact with the largest overlap over the smaller
+    radius, or -1; that fraction, 0 if none; contacts with gap > 0; largest gap, m, ≥ 0).
+    A NaN is the largest (as numpy's max and argmax take it)."""
+    k_max, f_max, touching, g_max = -1, 0.0, 0, 0.0
+    for k in range(ci.shape[0]):
+        i, j, g = ci[k], cj[k], gap[k]
+        rmin = min(r[i], r[j]) if j >= 0 else r[i]
+        f = np.maximum(g, 0.0) / rmin
+        if f_max == f_max and (k_max < 0 or f > f_max or f != f):
+            k_max, f_max = k, f
+        if g > 0.0:
+            touching += 1
+        if g_max == g_max and not g <= g_max:
+            g_max = g
+    return k_max, f_max, touching, g_max
+
+
 def _check_overlap(
     state: WorldState, p: Parameters, ci: np.ndarray, cj: np.ndarray, gap: np.ndarray
-) -> np.ndarray:
-    """Overlaps over the smaller radius (Nc,); DivergenceError when one exceeds max_overlap."""
-    rmin = np.where(cj >= 0, np.minimum(state.r[ci], state.r[np.maximum(cj, 0)]), state.r[ci])
-    frac = np.maximum(gap, 0.0) / rmin
-    if frac.size == 0 or frac.max() <= p.max_overlap:
-        return frac
-    k = int(frac.argmax())
+) -> tuple[float, int, float]:
+    """The largest overlap over the smaller radius, the touching contacts and the largest
+    overlap (m); DivergenceError when an overlap exceeds max_overlap of the smaller radius."""
+    k, frac_max, touching, gap_max = _overlaps(state.r, ci, cj, gap)
+    if k < 0 or frac_max <= p.max_overlap:
+        return float(frac_max), int(touching), float(gap_max)
     other = f"sphere {state.id[cj[k]]}" if cj[k] >= 0 else f"body {-cj[k] - 1}"
     raise DivergenceError(
-        f"overlap {gap[k]:.4g} m = {frac[k]:.3g} of the smaller radius between sphere "
+        f"overlap {gap[k]:.4g} m = {frac_max:.3g} of the smaller radius between sphere "
         f"{state.id[ci[k]]} and {other} exceeds max_overlap = {p.max_overlap} at step "
         f"{state.step_count + 1} (t = {state.time:.6g} s)"
     )

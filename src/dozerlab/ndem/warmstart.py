@@ -88,7 +88,8 @@ class WarmStart:
 
         The friction and rolling vectors are projected onto the new tangent planes.
         """
-        return _lookup(ids, ci, cj, np.ascontiguousarray(normals), self.start, self.hi, self.lam)
+        # A strided view (the contact table's normal columns) is read in place, not copied.
+        return _lookup(ids, ci, cj, normals, self.start, self.hi, self.lam)
 
     def store(self, ids: np.ndarray, ci: np.ndarray, cj: np.ndarray, lam: np.ndarray) -> None:
         """Remember this step's multipliers."""
