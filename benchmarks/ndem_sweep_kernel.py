@@ -8,10 +8,11 @@
 Drives the blade along the trajectory from the bed (as ``benchmarks/ndem_solver_run.py`` does)
 with the baseline kernel for ``--steps`` steps, then snapshots the next step's assembled contact
 system just before :func:`dozerlab.ndem.solver.solve` (``--snapshot`` keeps it in a ``.npz`` for
-later runs) and times ``solve`` on fresh copies of it, ``--repeats`` times each, side by side in one process:
-the baseline kernel (``solver.py`` as committed at the git ref ``--baseline``, loaded beside the
-working tree's) and the working tree's. Prints contact-iterations/s (best and median of the
-repeats) and the largest difference of the multipliers and velocities against the baseline.
+later runs) and times ``solve`` on fresh copies of it, ``--repeats`` times each, side by side in
+one process: the baseline kernel (``solver.py`` as committed at the git ref ``--baseline``,
+loaded beside the working tree's) and the working tree's. Prints contact-iterations/s (best and
+median of the repeats) and the largest difference of the multipliers and velocities against the
+baseline.
 Not a test: the seconds depend on the machine and its load.
 """
 
@@ -123,7 +124,8 @@ def main(argv: list[str] | None = None) -> None:
             np.savez(args.snapshot, **snap)
     nc, n = snap["ci"].shape[0], snap["v"].shape[0]
     print(
-        f"snapshot after {snap['driven']} steps: {nc} contacts, {n} spheres, {snap['n_slabs']} slabs,"
+        f"snapshot after {snap['driven']} steps: {nc} contacts, {n} spheres, "
+        f"{snap['n_slabs']} slabs,"
         f" {snap['iterations']} sweeps, omega {snap['omega']}, method {snap['method']},"
         f" {numba.get_num_threads()} numba thread(s)"
     )
