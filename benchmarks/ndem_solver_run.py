@@ -8,7 +8,10 @@ Each solver is METHOD:RELAXATION:ITERATIONS (no tolerance). The run drives the b
 trajectory from the bed as the ``simulate`` job does (without sampling) and prints, side by
 side in one process, the seconds spent stepping, the largest overlap over the smaller radius
 (how soft the bed got: the divergence guard is ``solver.max_overlap``), the mean sweeps and
-the blade's mean push force. Not a test: the seconds depend on the machine and its load.
+the blade's mean push force. ``--perturb`` repeats each run with the bed's initial velocities
+scaled by 1 + EPS: a round-off-sized EPS (1e-13) shows how far a run spreads on its own, the
+yardstick for a change that alters only round-off. Not a test: the seconds depend on the
+machine and its load.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--config", required=True)
     ap.add_argument("--solvers", nargs="+", required=True, help="METHOD:RELAXATION:ITERATIONS")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--perturb", type=float, nargs="+", default=[0.0], metavar="EPS")
     args = ap.parse_args(argv)
 
     from dozerlab.runtime import set_threads
@@ -39,10 +43,11 @@ def main(argv: list[str] | None = None) -> None:
 
     config = load_config(args.config)
     traj, bed = Trajectory.load_csv(args.trajectory), Bed.load(args.bed)
-    for spec in args.solvers:
+    for spec, eps in ((s, e) for s in args.solvers for e in args.perturb):
         method, omega, iterations = spec.split(":")
         solver = {"method": method, "relaxation": float(omega), "iterations": int(iterations)}
         world, _ = make_world(bed, {**config, "solver": {**config["solver"], **solver}})
+        world.state.v *= 1.0 + eps
         blade = add_blade(world, traj.position[0], config)
         seconds, overlap, sweeps, fx = 0.0, 0.0, 0, []
         for i in range(traj.steps):
@@ -54,8 +59,9 @@ def main(argv: list[str] | None = None) -> None:
             sweeps += stats.iterations
             fx.append(world.force_on(blade)[0])
         print(
-            f"{spec:16s} stepping {seconds:6.2f} s, largest overlap {overlap:.3f} r, "
-            f"{sweeps / traj.steps:.0f} sweeps/step, mean push {-np.mean(fx):8.1f} N"
+            f"{spec:16s} eps {eps:8.1e} stepping {seconds:6.2f} s, "
+            f"largest overlap {overlap:.3f} r, {sweeps / traj.steps:.0f} sweeps/step, "
+            f"mean push {-np.mean(fx):8.1f} N"
         )
 
 

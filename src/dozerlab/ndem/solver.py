@@ -20,33 +20,30 @@ from dozerlab.ndem.contacts import KN, KR, KT, MU, MUR, N0, RI, RJ, SIG, VB, WB,
 
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
-def _disc_step(lam, k, col, t0, t1, t2, n0, n1, n2, lim):
-    """Project the trial multiplier t onto the tangent plane of n and the disc |t| <= ``lim``,
-    store it in ``lam[k, col:col + 3]`` and return its change (the friction and the rolling
-    rows share this step; inlined, so it costs no call)."""
-    tn = t0 * n0 + t1 * n1 + t2 * n2
-    t0 -= tn * n0
-    t1 -= tn * n1
-    t2 -= tn * n2
+def _clip(t0, t1, t2, lim):
+    """The vector t scaled onto the disc |t| <= ``lim`` when it lies outside (the friction and
+    the rolling rows share this step; inlined, so it costs no call)."""
     mag2 = t0 * t0 + t1 * t1 + t2 * t2
     if mag2 > lim * lim:
         sc = lim / np.sqrt(mag2)
-        t0 *= sc
-        t1 *= sc
-        t2 *= sc
-    d0 = t0 - lam[k, col]
-    d1 = t1 - lam[k, col + 1]
-    d2 = t2 - lam[k, col + 2]
-    lam[k, col] = t0
-    lam[k, col + 1] = t1
-    lam[k, col + 2] = t2
-    return d0, d1, d2
+        return t0 * sc, t1 * sc, t2 * sc
+    return t0, t1, t2
 
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1);
-    returns the squared normal-row residual (m²/s²)."""
+    returns the squared normal-row residual (m²/s²).
+
+    The rows are solved in order (normal, friction, rolling), each seeing the ones before, but
+    written so that little waits on the row before: the normal update is along n, so the
+    friction row's tangential slip is taken from the velocities before it, and the friction
+    update turns w by a tangential n × d, so the rolling row adds that to the tangential
+    relative angular velocity taken before it. The multipliers stay in the tangent plane (the
+    warm start projects them onto it), so no row projects them again. Same arithmetic up to
+    round-off as applying each update to the velocities in turn; the sweep's time is the
+    latency of this chain (BENCHMARKS.md "NDEM sweep kernel").
+    """
     i = ci[k]
     j = cj[k]
     c = cd[k]
@@ -67,86 +64,79 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     wi0, wi1, wi2 = w[i, 0], w[i, 1], w[i, 2]
 
     # Normal row.
+    g0, g1, g2 = vi0 - vj0, vi1 - vj1, vi2 - vj2
     ln = lam[k, 0]
-    un = n0 * (vi0 - vj0) + n1 * (vi1 - vj1) + n2 * (vi2 - vj2)
+    un = n0 * g0 + n1 * g1 + n2 * g2
     ln_new = max(0.0, ln + omega * (c[B] - un - c[SIG] * ln) * c[KN])
     dn = ln_new - ln
     lam[k, 0] = ln_new
-    vi0 += dn * imi * n0
-    vi1 += dn * imi * n1
-    vi2 += dn * imi * n2
-    vj0 -= dn * imj * n0
-    vj1 -= dn * imj * n1
-    vj2 -= dn * imj * n2
     res = dn / (omega * c[KN])
-    if (
-        ln_new == 0.0
-        and lam[k, 1] == 0.0
-        and lam[k, 2] == 0.0
-        and lam[k, 3] == 0.0
-        and lam[k, 4] == 0.0
-        and lam[k, 5] == 0.0
-        and lam[k, 6] == 0.0
-    ):
+    l1, l2, l3 = lam[k, 1], lam[k, 2], lam[k, 3]
+    l4, l5, l6 = lam[k, 4], lam[k, 5], lam[k, 6]
+    if ln_new == 0.0 and l1 == l2 == l3 == l4 == l5 == l6 == 0.0:
         # Separating or speculative and unloaded: the friction and rolling discs are points.
         if dn != 0.0:
-            v[i, 0], v[i, 1], v[i, 2] = vi0, vi1, vi2
+            v[i, 0], v[i, 1], v[i, 2] = (
+                vi0 + dn * imi * n0,
+                vi1 + dn * imi * n1,
+                vi2 + dn * imi * n2,
+            )
             if j >= 0:
-                v[j, 0], v[j, 1], v[j, 2] = vj0, vj1, vj2
+                v[j, 0], v[j, 1], v[j, 2] = (
+                    vj0 - dn * imj * n0,
+                    vj1 - dn * imj * n1,
+                    vj2 - dn * imj * n2,
+                )
         return res * res
 
+    # Friction: the trial impulse from the contact points' tangential relative velocity.
     ri = c[RI]
     rj = c[RJ]
-    # Friction: relative velocity of the contact points, tangential part.
     s0 = ri * wi0 + rj * wj0
     s1 = ri * wi1 + rj * wj1
     s2 = ri * wi2 + rj * wj2
-    u0 = vi0 - vj0 - (s1 * n2 - s2 * n1)
-    u1 = vi1 - vj1 - (s2 * n0 - s0 * n2)
-    u2 = vi2 - vj2 - (s0 * n1 - s1 * n0)
+    u0 = g0 - (s1 * n2 - s2 * n1)
+    u1 = g1 - (s2 * n0 - s0 * n2)
+    u2 = g2 - (s0 * n1 - s1 * n0)
+    ut = u0 * n0 + u1 * n1 + u2 * n2
     kt = omega * c[KT]
-    t0 = lam[k, 1] - kt * u0
-    t1 = lam[k, 2] - kt * u1
-    t2 = lam[k, 3] - kt * u2
-    d0, d1, d2 = _disc_step(lam, k, 1, t0, t1, t2, n0, n1, n2, c[MU] * ln_new)
-    vi0 += imi * d0
-    vi1 += imi * d1
-    vi2 += imi * d2
-    vj0 -= imj * d0
-    vj1 -= imj * d1
-    vj2 -= imj * d2
-    x0 = n1 * d2 - n2 * d1  # n × d
+    t0, t1, t2 = _clip(
+        l1 - kt * (u0 - ut * n0), l2 - kt * (u1 - ut * n1), l3 - kt * (u2 - ut * n2), c[MU] * ln_new
+    )
+    d0, d1, d2 = t0 - l1, t1 - l2, t2 - l3
+    lam[k, 1], lam[k, 2], lam[k, 3] = t0, t1, t2
+    p0, p1, p2 = dn * n0 + d0, dn * n1 + d1, dn * n2 + d2
+    x0 = n1 * d2 - n2 * d1  # n × d: the friction update turns w_i by -I_i⁻¹ r_i x
     x1 = n2 * d0 - n0 * d2
     x2 = n0 * d1 - n1 * d0
-    wi0 -= iii * ri * x0
-    wi1 -= iii * ri * x1
-    wi2 -= iii * ri * x2
-    wj0 -= iij * rj * x0
-    wj1 -= iij * rj * x1
-    wj2 -= iij * rj * x2
+    qi = iii * ri
+    qj = iij * rj
 
-    # Rolling resistance on the tangential relative angular velocity.
+    # Rolling resistance on the tangential relative angular velocity after the friction update.
     a0 = wi0 - wj0
     a1 = wi1 - wj1
     a2 = wi2 - wj2
     an = a0 * n0 + a1 * n1 + a2 * n2
+    q = qj - qi
     kr = omega * c[KR]
-    r0 = lam[k, 4] - kr * (a0 - an * n0)
-    r1 = lam[k, 5] - kr * (a1 - an * n1)
-    r2 = lam[k, 6] - kr * (a2 - an * n2)
-    e0, e1, e2 = _disc_step(lam, k, 4, r0, r1, r2, n0, n1, n2, c[MUR] * ln_new)
-    wi0 += iii * e0
-    wi1 += iii * e1
-    wi2 += iii * e2
+    r0, r1, r2 = _clip(
+        l4 - kr * (a0 - an * n0 + q * x0),
+        l5 - kr * (a1 - an * n1 + q * x1),
+        l6 - kr * (a2 - an * n2 + q * x2),
+        c[MUR] * ln_new,
+    )
+    e0, e1, e2 = r0 - l4, r1 - l5, r2 - l6
+    lam[k, 4], lam[k, 5], lam[k, 6] = r0, r1, r2
 
-    v[i, 0], v[i, 1], v[i, 2] = vi0, vi1, vi2
-    w[i, 0], w[i, 1], w[i, 2] = wi0, wi1, wi2
+    v[i, 0], v[i, 1], v[i, 2] = vi0 + imi * p0, vi1 + imi * p1, vi2 + imi * p2
+    w[i, 0] = wi0 - qi * x0 + iii * e0
+    w[i, 1] = wi1 - qi * x1 + iii * e1
+    w[i, 2] = wi2 - qi * x2 + iii * e2
     if j >= 0:
-        wj0 -= iij * e0
-        wj1 -= iij * e1
-        wj2 -= iij * e2
-        v[j, 0], v[j, 1], v[j, 2] = vj0, vj1, vj2
-        w[j, 0], w[j, 1], w[j, 2] = wj0, wj1, wj2
+        v[j, 0], v[j, 1], v[j, 2] = vj0 - imj * p0, vj1 - imj * p1, vj2 - imj * p2
+        w[j, 0] = wj0 - qj * x0 - iij * e0
+        w[j, 1] = wj1 - qj * x1 - iij * e1
+        w[j, 2] = wj2 - qj * x2 - iij * e2
     return res * res
 
 
