@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dozerlab.fields.sampling import SamplingGrid
+from dozerlab.fields.store import open_store
 from dozerlab.reduce.compare import compare_point
 from dozerlab.reduce.models import ForcePredictor, ReplayFieldModel
 from dozerlab.reduce.run import reduce_run
@@ -57,3 +58,47 @@ def test_with_the_replay_model_the_loop_follows_the_ndem_store(ndem_run):
     # (the height field of this 0.18 m lattice changes by about a grain: too little to score)
     assert m_replay["final_emd_m"] < m_still["final_emd_m"]
     assert m_replay["body_depth_final_m"] <= 1e-9 and m_replay["left_bed"] == 0
+
+
+class _Uniform:
+    """A field model that predicts one uniform velocity and records the history it was given."""
+
+    name, history, horizon = "uniform", 1, 1
+    u = np.array([0.4, 0.0, 0.1], np.float32)
+
+    def __init__(self, grid):
+        self.grid = grid
+        self.seen: list[np.ndarray] = []
+
+    def predict(self, velocity, density, blade_velocity, row):
+        self.seen.append(velocity[-1].copy())
+        v = np.broadcast_to(self.u, (1, *self.grid, 3)).copy()
+        return v, density[-1:].copy()
+
+
+def test_the_field_model_reads_the_flow_it_gave_not_the_projected_motion(ndem_run):
+    tmp, config = ndem_run
+    grid = SamplingGrid.from_config(config)
+    model = _Uniform(grid.bins)
+    reduce_run(
+        tmp / "bed.npz",
+        tmp / "speed~0.5_depth~0.06.csv",
+        config,
+        model,
+        ForcePredictor(tmp / "linear"),
+        tmp / "uniform.zarr",
+        tmp / "uniform.npz",
+    )
+    stored = open_store(tmp / "uniform.zarr")
+    warm = int(stored.attrs["warmup_rows"])
+    # every grain touching a bin off the volume's floor and blade face was carried by the field
+    for k, seen in enumerate(model.seen[1:], start=warm):
+        rho = stored["density"].values[k]
+        inner = rho[1:, :, 1:] > 0
+        np.testing.assert_allclose(
+            seen[1:, :, 1:][inner],
+            np.broadcast_to(model.u, seen[1:, :, 1:][inner].shape),
+            atol=1e-5,
+        )
+    moved = stored["velocity"].values[warm:, 1:, :, 1:]
+    assert np.abs(moved - model.u).max() > 0.05  # the projection did change the grains' motion

@@ -101,3 +101,19 @@ def test_a_grain_moved_past_the_ring_has_its_overlap_counted_over_the_whole_bed(
     assert state.beyond_ring == 1
     assert stats.max_overlap == pytest.approx(largest_overlap(state.x, state.r), abs=1e-12)
     assert stats.max_overlap == pytest.approx(0.3, abs=1e-6)
+
+
+def test_flow_is_the_fields_velocity_not_the_projections_push():
+    # two grains in the volume driven head-on into a resting one outside it: the projection
+    # stops them, but their flow stays what the field gave them; the pushed grain's flow is
+    # its projected velocity
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    x = np.array([[0.30, 0.0, 0.02], [0.34, 0.0, 0.02], [0.38, 0.0, 0.02]])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 2.0
+    state = _state(x, np.zeros_like(x), grid, ReducedSettings(advect_margin=0.0))
+    state.step(field, np.full(grid.bins, 1500.0), np.array([-0.05, 0.0, 0.0]), 0.01)
+    np.testing.assert_allclose(state.flow[:2], [[2.0, 0.0, 0.0]] * 2, atol=1e-12)
+    assert not np.allclose(state.v[:2], state.flow[:2])  # the projection changed their motion
+    np.testing.assert_array_equal(state.flow[2], state.v[2])
+    assert state.v[2, 0] > 0.0

@@ -79,6 +79,7 @@ def reduce_run(
     geometry = BladeGeometry.from_config(config)
     vel = np.zeros((rows, *grid.bins, 3), np.float32)
     rho = np.zeros((rows, *grid.bins), np.float32)
+    flow = np.zeros_like(vel)  # the field model's velocity history (ReducedState.flow)
     x, y, z = grid.centres()
     attrs = {
         "scenario": scenario or bed.scenario,
@@ -116,6 +117,7 @@ def reduce_run(
                 row = sample_row(world, blade, grid, traj, i + 1, geometry.tip_offset)
                 k = (i + 1) // every - 1
                 vel[k], rho[k] = row[1], row[2]
+                flow[k] = row[1]
                 writer.append(*row)
         domain_hi = np.array([bed.length, bed.width / 2, bed.positions[:, 2].max() + 1.0])
         state = ReducedState(
@@ -138,7 +140,7 @@ def reduce_run(
             j = (k - warmup) % horizon
             if j == 0:
                 pred_v, pred_rho = field_model.predict(
-                    vel[k - hist : k],
+                    flow[k - hist : k],
                     rho[k - hist : k],
                     blade_v_ahead[k - hist : k + horizon],
                     k - 1,
@@ -155,6 +157,9 @@ def reduce_run(
             near = state.near(tip)
             vel[k], rho[k] = grid.sample(
                 state.x[near], state.v[near], state.r[near], state.m[near], tip
+            )
+            flow[k], _ = grid.sample(
+                state.x[near], state.flow[near], state.r[near], state.m[near], tip
             )
             t0 = times.add("sampling", t0)
             force, torque = force_model.predict(vel[: k + 1], rho[: k + 1], blade_v[: k + 1])
