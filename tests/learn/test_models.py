@@ -4,7 +4,7 @@ import torch
 from torch.nn import functional as F
 
 from dozerlab.learn.metrics import component_metrics
-from dozerlab.learn.models import ForceModel, n_channels, resize_trilinear
+from dozerlab.learn.models import Conv3d, ForceModel, n_channels, resize_trilinear
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.learn.train import TrainingDiverged, train_model
 from dozerlab.learn.validate import predict_store
@@ -102,6 +102,31 @@ def test_resize_matrix_made_in_inference_mode_serves_training():
     w = torch.ones((), requires_grad=True)
     resize_trilinear(x * w, (6, 10, 13)).sum().backward()
     assert w.grad is not None
+
+
+@pytest.mark.parametrize(
+    ("cin", "k", "stride", "grid"), [(8, 3, 1, (16, 12, 8)), (24, 2, 1, (17, 13, 9))]
+)
+def test_conv3d_inference_is_torchs_convolution(cin, k, stride, grid):
+    """Inference takes oneDNN for a large convolution and agrees with nn.Conv3d; training takes
+    torch's own path, gradients included; the state dict is nn.Conv3d's."""
+    torch.manual_seed(0)
+    conv = Conv3d(cin, 8, k, stride=stride, padding=(k - 1) // 2)
+    ref = torch.nn.Conv3d(cin, 8, k, stride=stride, padding=(k - 1) // 2)
+    ref.load_state_dict(conv.state_dict())
+    x = torch.randn(1, cin, *grid)
+    with torch.inference_mode():
+        assert conv.uses_onednn(x)
+        torch.testing.assert_close(conv(x), ref(x), rtol=1e-5, atol=1e-5)
+    xg = x.clone().requires_grad_(True)
+    assert not conv.uses_onednn(xg)
+    out = conv(xg)
+    torch.testing.assert_close(out, ref(x), rtol=0, atol=0)
+    out.sum().backward()
+    assert conv.weight.grad is not None and xg.grad is not None
+    small = torch.randn(1, cin, 4, 3, 2)
+    with torch.inference_mode():
+        assert not conv.uses_onednn(small)  # the weight reordering would cost more
 
 
 @pytest.mark.parametrize("history", [1, 3])

@@ -123,9 +123,51 @@ class MLP(nn.Module):
         return self.net(torch.cat([x.flatten(1), c], dim=1))
 
 
+#: im2col columns (input channels × kernel volume × output bins) from which oneDNN's convolution
+#: beats torch's im2col path for one sample: below, and for 1³ kernels (no im2col), its ≈80 µs
+#: of weight reordering a call outweighs what it saves (``benchmarks/inference_conv.py``).
+ONEDNN_COLUMNS = 100_000
+
+
+class Conv3d(nn.Conv3d):
+    """``nn.Conv3d`` (same parameters and state dict) that, where no gradient is asked for on
+    the CPU in float32, runs its large convolutions with oneDNN directly: for the one sample at
+    a time the reduced loop asks for, torch's own dispatch takes its unvectorised im2col path,
+    3× slower for the larger kernels on the full grid (``benchmarks/inference_conv.py``); the
+    outputs agree to float32 round-off."""
+
+    def uses_onednn(self, x: torch.Tensor) -> bool:
+        """Whether :meth:`forward` runs oneDNN's convolution on ``x`` (B, C, X, Y, Z)."""
+        kernel = self.kernel_size[0] * self.kernel_size[1] * self.kernel_size[2]
+        bins = x[0, 0].numel() // (self.stride[0] * self.stride[1] * self.stride[2])
+        return not (
+            kernel == 1
+            or x.shape[1] * kernel * bins < ONEDNN_COLUMNS
+            or x.device.type != "cpu"
+            or x.dtype != torch.float32
+            or self.padding_mode != "zeros"
+            or isinstance(self.padding, str)
+            or (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad))
+            or not torch.backends.mkldnn.is_available()
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.uses_onednn(x):
+            return super().forward(x)
+        return torch.ops.aten.mkldnn_convolution(
+            x.contiguous(),
+            self.weight,
+            self.bias,
+            self.padding,
+            self.stride,
+            self.dilation,
+            self.groups,
+        )
+
+
 def _same2(cin: int, cout: int) -> nn.Sequential:
     """A 2³ convolution that keeps the grid size (TensorFlow's 'same': one extra bin at the end)."""
-    return nn.Sequential(nn.ConstantPad3d((0, 1, 0, 1, 0, 1), 0.0), nn.Conv3d(cin, cout, 2))
+    return nn.Sequential(nn.ConstantPad3d((0, 1, 0, 1, 0, 1), 0.0), Conv3d(cin, cout, 2))
 
 
 class ThesisCNN(nn.Module):
@@ -140,7 +182,7 @@ class ThesisCNN(nn.Module):
         self.grid = grid
         self.stem = _same2(in_channels, width)
         self.branches = nn.ModuleList(_same2(width, width) for _ in range(3))
-        self.mix = nn.Conv3d(width, width, 1)
+        self.mix = Conv3d(width, width, 1)
         d = width * grid[0] * grid[1] * grid[2] + cond
         self.head = nn.Sequential(
             nn.Linear(d, 384), nn.ReLU(), nn.Linear(384, 192), nn.ReLU(), nn.Linear(192, OUTPUTS)
@@ -191,7 +233,7 @@ def pad_even(x: torch.Tensor) -> torch.Tensor:
 
 def _block(cin: int, cout: int, k: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(
-        nn.Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0),
+        Conv3d(cin, cout, k, stride=stride, padding=(k - 1) // 2 if stride == 1 else 0),
         nn.GELU(),
     )
 
@@ -227,7 +269,7 @@ class ForceDensityUNet(nn.Module):
             _block(width, 2 * width, 2, stride=2), _block(2 * width, 2 * width, 3)
         )
         self.d1 = _block(3 * width, width, 1)
-        self.d0 = nn.Sequential(_block(2 * width, width, 1), nn.Conv3d(width, OUTPUTS, 1))
+        self.d0 = nn.Sequential(_block(2 * width, width, 1), Conv3d(width, OUTPUTS, 1))
         self.cond_head = nn.Linear(cond, OUTPUTS)
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from dozerlab.learn.dynamics.advection import advect
-from dozerlab.learn.models import pad_even, resize_trilinear
+from dozerlab.learn.models import Conv3d, pad_even, resize_trilinear
 
 DYNAMICS_MODELS = ("persistence", "ridge", "unet")
 #: Field channels of a row: density, then the three velocity components.
@@ -68,7 +68,7 @@ class RidgeStencil(nn.Module):
 
 def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
     pad = (k - 1) // 2 if stride == 1 else 0
-    return nn.Sequential(nn.Conv3d(cin, cout, k, stride=stride, padding=pad), nn.GELU())
+    return nn.Sequential(Conv3d(cin, cout, k, stride=stride, padding=pad), nn.GELU())
 
 
 class EvolutionUNet(nn.Module):
@@ -83,7 +83,7 @@ class EvolutionUNet(nn.Module):
         self.e2 = nn.Sequential(_conv(2 * w, 2 * w, 2, 2), _conv(2 * w, 2 * w))
         self.d1 = _conv(4 * w, 2 * w)
         self.d0 = _conv(3 * w, w)
-        self.out = nn.Conv3d(w, outputs, 1)
+        self.out = Conv3d(w, outputs, 1)
         nn.init.zeros_(self.out.weight)
         assert self.out.bias is not None
         nn.init.zeros_(self.out.bias)
