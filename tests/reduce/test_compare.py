@@ -48,10 +48,14 @@ def test_field_errors_per_row_weight_velocity_by_the_true_density():
     v_true[..., 0] = 1.0
     v = v_true.copy()
     v[1, 0, 0, 0, 0] = 3.0  # row 1: 2 m/s off in a bin of half the mass
-    ev, er = field_errors(v, rho_true * [1.0, 1.0], v_true, rho_true)
-    np.testing.assert_allclose(ev[:2], [0.0, np.sqrt(2 * 4 / 4)])
-    np.testing.assert_allclose(er[:2], [0.0, 0.0])
-    assert np.isnan(ev[2]) and np.isnan(er[2])  # no truth to compare with
+    rho = rho_true.copy()
+    rho[2] = 1.0  # row 2: mass where the truth has none
+    ev, er = field_errors(v, rho, v_true, rho_true)
+    # over the run's mean squared norms: velocity (4 + 4 + 0) / 3, density (10 + 8 + 0) / 3
+    np.testing.assert_allclose(ev, [0.0, np.sqrt(2 * 4 / (8 / 3)), 0.0])
+    np.testing.assert_allclose(er, [0.0, 0.0, np.sqrt(2 / 6)])
+    nothing = field_errors(v, rho, v_true, 0 * rho_true)
+    assert np.isnan(nothing[0]).all() and np.isnan(nothing[1]).all()  # no truth to compare with
 
 
 def test_sliced_emd_sees_no_permutation_and_a_shift_at_most_its_length():

@@ -68,10 +68,12 @@ def relative_rmse(pred: np.ndarray, true: np.ndarray) -> float:
 def field_errors(
     v: np.ndarray, rho: np.ndarray, v_true: np.ndarray, rho_true: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-row relative L2 of velocity (mass-weighted by ``rho_true``) and density, (T,) each.
+    """Per-row L2 error of velocity (mass-weighted by ``rho_true``) and density, (T,) each,
+    relative to the truth's root-mean-square row norm over the run.
 
     v, v_true (T, Nx, Ny, Nz, 3) m/s; rho, rho_true (T, Nx, Ny, Nz) kg/m³. NaN where the truth
-    is zero.
+    is zero all run. (Over each row's own norm, the rows before the blade reaches the material,
+    whose truth barely moves, read as errors of 400 on the default sweep and flattened the rest.)
     """
     axes = tuple(range(1, rho_true.ndim))
     w = rho_true.astype(np.float64)
@@ -79,11 +81,11 @@ def field_errors(
     den_v = (w * np.square(v_true, dtype=np.float64).sum(-1)).sum(axes)
     num_r = np.square(rho - rho_true, dtype=np.float64).sum(axes)
     den_r = np.square(rho_true, dtype=np.float64).sum(axes)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return (
-            np.where(den_v > 0, np.sqrt(num_v / den_v), np.nan),
-            np.where(den_r > 0, np.sqrt(num_r / den_r), np.nan),
-        )
+    dv, dr = float(den_v.mean()), float(den_r.mean())
+    return (
+        np.sqrt(num_v / dv) if dv > 0 else np.full(num_v.shape, np.nan),
+        np.sqrt(num_r / dr) if dr > 0 else np.full(num_r.shape, np.nan),
+    )
 
 
 def _global_l2(v: np.ndarray, v_true: np.ndarray, rho_true: np.ndarray) -> float:

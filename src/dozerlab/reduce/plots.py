@@ -53,13 +53,14 @@ def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | P
 
 
 def plot_errors(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
-    """Relative L2 of the velocity (mass-weighted) and density fields over time."""
+    """L2 error of the velocity (mass-weighted) and density fields over time, each over the
+    NDEM field's RMS row norm of the run."""
     fig = Figure(figsize=(9, 4), layout="constrained")
     ax = fig.add_subplot()
     ax.plot(series["time"], series["velocity_error"], label="velocity (mass-weighted)")
     ax.plot(series["time"], series["density_error"], label="density")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("relative L2 vs NDEM")
+    ax.set_ylabel("L2 error vs NDEM / NDEM's RMS")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
