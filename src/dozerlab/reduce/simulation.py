@@ -80,7 +80,7 @@ PHASES = (
 class ReducedSettings:
     """The ``reduced`` config section's loop settings (units in the schema)."""
 
-    iterations: int = 24
+    iterations: int = 48
     method: str = "gauss_seidel"
     relaxation: float = 1.5
     slop: float = 0.05
