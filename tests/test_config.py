@@ -92,6 +92,12 @@ def test_a_gap_where_grains_wedge_is_flagged():
         load_config({"bed": {"width": 0.8, "radius": 0.025}, "blade": {"width": 0.7}})
 
 
+def test_a_job_given_the_blade_but_not_the_bed_hears_nothing_of_the_default_beds_gap(recwarn):
+    # the default bed (10 cm grains, 1.2 m) beside the default sweep's 0.7 m blade would wedge
+    load_config({"blade": {"width": 0.7}})
+    assert not [w for w in recwarn if issubclass(w.category, ConfigWarning)]
+
+
 @pytest.mark.parametrize(
     ("doc", "field", "allowed"),
     [
