@@ -84,7 +84,7 @@ class ReducedSettings:
     method: str = "gauss_seidel"
     relaxation: float = 1.5
     slop: float = 0.05
-    tolerance: float = 0.01
+    tolerance: float = 0.02
     advect_margin: float = 2.0
     rest_speed: float = 0.05
     divergence_overlap: float = 0.5
