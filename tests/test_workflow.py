@@ -235,6 +235,12 @@ def test_rerun_builds_nothing_and_logs_nothing(quick):
     assert len(runs(quick)[1]) == before
 
 
+def _terminal_signals() -> None:
+    """Ctrl-C's default action, as in a terminal: a shell's background job (`cmd &`) starts with
+    SIGINT ignored, and Snakemake would inherit that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def background(workdir: Path, *args: str) -> subprocess.Popen:
     """Snakemake started in its own process group (to signal it as a terminal would)."""
     return subprocess.Popen(
@@ -244,6 +250,7 @@ def background(workdir: Path, *args: str) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        preexec_fn=_terminal_signals,
     )
 
 
