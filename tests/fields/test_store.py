@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import asyncio
+import time
+
 import numpy as np
 import pytest
 import xarray as xr
 import zarr
+from zarr.core import sync as zarr_sync
 
 from dozerlab.fields.reader import DamagedStoreError
 from dozerlab.fields.store import SCHEMA, FieldStoreWriter, open_store, write_store
@@ -59,6 +63,30 @@ def test_failed_write_leaves_nothing(tmp_path, store_arrays):
 
     with pytest.raises(RuntimeError, match="boom"):
         write_then_fail()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_write_still_in_flight_is_waited_for_before_the_temporary_goes(tmp_path, store_arrays):
+    """A signal that ends the wait for a zarr write (SIGTERM raising SystemExit) leaves the write
+    running on zarr's IO thread: the temporary must go only once it is done, or it comes back."""
+    a = store_arrays
+    writer = FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={})
+
+    def interrupted_mid_write() -> None:
+        with writer:
+            (tmp,) = tmp_path.glob(".f.zarr.tmp-*")
+
+            async def chunk_write() -> None:  # as zarr's local store writes: parents made
+                await asyncio.sleep(0.3)
+                (tmp / "density" / "c").mkdir(parents=True, exist_ok=True)
+                (tmp / "density" / "c" / "0").write_bytes(b"late")
+
+            asyncio.run_coroutine_threadsafe(chunk_write(), zarr_sync._get_loop())
+            raise SystemExit(143)
+
+    with pytest.raises(SystemExit):
+        interrupted_mid_write()
+    time.sleep(0.5)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -27,6 +27,8 @@ leaves nothing behind.
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import json
 import math
 import sys
@@ -41,6 +43,7 @@ import numpy as np
 import xarray as xr
 import zarr
 from zarr.codecs import BloscCodec
+from zarr.core import sync as zarr_sync
 
 from dozerlab.fields.reader import DamagedStoreError, missing_pieces
 from dozerlab.runtime import OutputKind, atomic_output
@@ -117,6 +120,28 @@ def default_codec() -> BloscCodec:
     return BloscCodec(cname="lz4", clevel=5, shuffle="noshuffle")
 
 
+def settle_zarr_io(timeout_s: float = 60.0) -> None:
+    """Wait until zarr's IO thread has finished the work in flight (at most ``timeout_s``).
+
+    zarr runs a write as a coroutine on its own event-loop thread while the caller waits for it.
+    A signal that ends the caller's wait (SIGTERM raising ``SystemExit``, Ctrl-C) leaves the
+    coroutine writing: a temporary removed at that moment got chunk files back, or its removal
+    failed on a directory filled under it (2 of 30 SIGTERMs mid-write, two cores busy). Call
+    this before removing a store that an exception interrupted.
+    """
+    loop = zarr_sync.loop[0]
+    if loop is None or loop.is_closed():
+        return
+
+    async def in_flight() -> None:
+        me = asyncio.current_task()
+        await asyncio.gather(
+            *(t for t in asyncio.all_tasks() if t is not me), return_exceptions=True
+        )
+
+    concurrent.futures.wait([asyncio.run_coroutine_threadsafe(in_flight(), loop)], timeout_s)
+
+
 class FieldStoreWriter:
     """Write a field store step by step in constant memory (one buffered chunk).
 
@@ -186,6 +211,7 @@ class FieldStoreWriter:
         try:
             self._create(tmp)
         except BaseException:
+            settle_zarr_io()
             self._stack.__exit__(*sys.exc_info())
             raise
         return self
@@ -311,6 +337,8 @@ class FieldStoreWriter:
     ) -> bool:
         stack, self._stack = self._stack, None
         assert stack is not None
+        if exc_type is not None:
+            settle_zarr_io()
         if exc_type is None:
             try:
                 self._flush()
