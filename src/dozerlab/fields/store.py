@@ -40,7 +40,6 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import xarray as xr
 import zarr
 from zarr.codecs import BloscCodec
 from zarr.core import sync as zarr_sync
@@ -49,6 +48,7 @@ from dozerlab.fields.reader import DamagedStoreError, missing_pieces
 from dozerlab.runtime import OutputKind, atomic_output
 
 if TYPE_CHECKING:
+    import xarray as xr
     from zarr.core.array_spec import ArrayConfigParams
 
 COMPONENTS = ("x", "y", "z")
@@ -400,6 +400,8 @@ def open_store(path: str | Path) -> xr.Dataset:
     is not finite and strictly increasing, or when a force, torque or blade series holds NaN/inf.
     (The fields themselves are checked as :func:`~dozerlab.fields.reader.read_field` reads them.)
     """
+    import xarray as xr  # here: 0.4 s of importing xarray and pandas, which writers never need
+
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"field store not found: {path}")

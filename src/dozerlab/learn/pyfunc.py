@@ -22,15 +22,17 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import torch
 
 from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.models import ForceModel
 from dozerlab.runtime import DozerlabError, OutputKind
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 INPUT_NAMES = ("velocity", "density", "blade_velocity")
 
@@ -216,6 +218,8 @@ class PyfuncFormat:
 
 def predict_frame(model: ForceModel, arrays: dict[str, np.ndarray]) -> pd.DataFrame:
     """(B, 6) DataFrame force_x … torque_z (N, N·m) of per-step input arrays (the contract)."""
+    import pandas as pd  # only MLflow's predict path needs it; the reduced loop does not
+
     return pd.DataFrame(predict_arrays(model, arrays), columns=list(TARGET_NAMES))
 
 
