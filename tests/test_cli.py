@@ -98,6 +98,20 @@ def test_listing_the_commands_imports_no_heavy_library():
     assert out.stdout.strip() == "[]"
 
 
+def test_the_simulate_and_reduce_jobs_import_no_table_or_tracking_library():
+    """xarray and pandas cost 0.3-0.4 s a job to import, MLflow 1-2 s: a workflow job's run is
+    spooled, and neither job reads a store through xarray."""
+    code = (
+        "import sys\n"
+        "import dozerlab.fields.jobs, dozerlab.fields.run, dozerlab.reduce.jobs\n"
+        "import dozerlab.reduce.models, dozerlab.reduce.run\n"
+        "heavy = ('xarray', 'pandas', 'mlflow', 'matplotlib')\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy)))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert out.stdout.strip() == "[]"
+
+
 def test_the_internal_commands_are_hidden_from_help(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
