@@ -352,6 +352,11 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
     models, dynamics = cfg["learn"]["models"], cfg["dynamics"]["models"]
     reduced = cfg["reduced"]["dynamics_models"]
     held_out = [p for p in points if p.role != "train"]
+    # reduced.force_fields loop: each learned dynamics model's loop also runs the training points
+    looped = (
+        [m for m in reduced if m != "replay"] if cfg["reduced"]["force_fields"] == "loop" else []
+    )
+    training = len(points) - len(held_out)
     return {
         "bed": len(cfg["sweep"]["scenarios"]),
         "simulate": len(points),
@@ -359,6 +364,7 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
         "validate": len(models),
         "train_dynamics": len(dynamics),
         "validate_dynamics": len(dynamics),
-        "reduce": len(reduced) * len(held_out),
+        "reduce": len(reduced) * len(held_out) + len(looped) * training,
+        "train_loop_force": len(looped),
         "compare_reduced": len(reduced),
     }

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+import yaml
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
@@ -159,11 +160,19 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
             ds = open_store(P.reduced_path(results, model, point))
             ndem = open_store(P.field_path(results, point))
             assert dict(ds.sizes) == dict(ndem.sizes)
-            assert ds.attrs["dynamics_model"] == model and ds.attrs["force_model"] == "unet"
+            # replay's fields are NDEM's; the others' force model learnt their loop's fields
+            force = CFG["reduced"]["force_model"] + ("" if model == "replay" else "-loop")
+            assert ds.attrs["dynamics_model"] == model and ds.attrs["force_model"] == force
             assert ds.attrs["wall_time_s"] > 0 and np.isfinite(ds["force"].values).all()
             state = Bed.load(P.reduced_path(results, model, point, "npz"))
             assert state.count == ndem.attrs["particle_count"]
             assert P.reduce_benchmark_path(results, model, point).is_file()
+        if model != "replay":
+            meta = P.loop_force_model_path(results, model) / "artifacts" / "meta.json"
+            trained_on = json.loads(meta.read_text())["loop_fields"]
+            assert trained_on == [
+                str(P.reduced_path(results, model, p).resolve()) for p in P.by_role(POINTS, "train")
+            ]
         summary = json.loads(P.reduced_comparison_path(results, model).read_text())
         assert {(p["scenario"], p["speed"], p["depth"]) for p in summary["points"]} == {
             (p.scenario, p.speed, p.depth) for p in HELD_OUT
@@ -377,6 +386,24 @@ def test_a_path_spelled_otherwise_gets_the_canonical_spelling_or_the_reason(
     assert done.returncode != 0
     assert re.search(message, said), said[-3000:]
     assert "MissingRuleException" not in said
+
+
+def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
+    """force_fields loop: a learned dynamics model's held-out runs take the force model of its
+    loop's fields, trained on its runs of the training points; ndem: results/models for all."""
+    quick = yaml.safe_load(QUICK.read_text())
+    for fields, loop_jobs in (("loop", 1), ("ndem", 0)):
+        quick["reduced"]["force_fields"] = fields
+        cfg = tmp_path / f"{fields}.yaml"
+        cfg.write_text(yaml.safe_dump(quick))
+        done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
+        assert done.returncode == 0, done.stderr[-3000:]
+        jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
+        assert jobs.count("train_loop_force") == loop_jobs
+        assert jobs.count("reduce") == 4 + 4 * loop_jobs  # + ridge's runs of the 4 training points
+        forces = set(re.findall(r"--force-model (\S+)", done.stdout))
+        models = {"results/models/linear"}
+        assert forces == (models | {"results/reduced/ridge/force_model"} if loop_jobs else models)
 
 
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):

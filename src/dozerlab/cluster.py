@@ -25,6 +25,7 @@ RULES = (
     "train_dynamics",
     "validate_dynamics",
     "reduce",
+    "train_loop_force",
     "compare_reduced",
     "report",
     "plot_fields",
@@ -37,6 +38,7 @@ THREADED = {
     "train": "train",
     "train_dynamics": "dynamics",
     "reduce": "simulate",  # the NDEM run's threads: the speed-up compares the two at equal threads
+    "train_loop_force": "train",
     "report": "report",
 }
 

@@ -149,6 +149,7 @@ PATHS = {
     "reduce_benchmark": f"benchmarks/reduce/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.tsv",
     "reduced_comparison": "reduced/{dynamics_model}.json",
     "reduced_comparison_plots": "reduced/{dynamics_model}/compare",
+    "loop_force_model": "reduced/{dynamics_model}/force_model",
     "model": "models/{model}",
     "validation": "validation/{model}.json",
     "validation_plots": "validation/{model}",
@@ -243,6 +244,10 @@ def _per_model(kind: str, what: str) -> Callable[[str | Path, str], Path]:
 
 
 reduced_comparison_path = _per_model("reduced_comparison", "the reduced runs measured against NDEM")
+loop_force_model_path = _per_model(
+    "loop_force_model",
+    "the force model trained on that dynamics model's loop fields (an MLflow pyfunc directory)",
+)
 model_path = _per_model("model", "an MLflow pyfunc model directory")
 validation_path = _per_model("validation", "held-out metrics of one model")
 dynamics_model_path = _per_model("dynamics_model", "an evolution model's MLflow pyfunc directory")

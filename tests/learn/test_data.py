@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 import torch
 
-from dozerlab.learn.data import check_grid, concat, load_store, split_train_validation
+from dozerlab.learn.data import (
+    check_grid,
+    concat,
+    load_store,
+    split_train_validation,
+    with_loop_fields,
+)
 from dozerlab.learn.models import ForceModel
 from dozerlab.learn.train import Batches, fit_normalization
 from dozerlab.learn.validate import check_no_leak
@@ -91,3 +97,19 @@ def test_stores_of_other_bin_sizes_are_refused(store_files):
         check_grid([a, b])
     with pytest.raises(DozerlabError, match="bins of"):
         check_grid([a], a.grid, [0.2, 0.1, 0.1])
+
+
+def test_loop_fields_pair_the_loops_velocity_and_density_with_ndems_force():
+    ndem, loop = in_memory(1.0, 0.1, seed=1), in_memory(1.0, 0.1, seed=2)
+    paired = with_loop_fields(ndem, loop)
+    np.testing.assert_array_equal(paired.velocity, loop.velocity)
+    np.testing.assert_array_equal(paired.density, loop.density)
+    np.testing.assert_array_equal(paired.target, ndem.target)
+    np.testing.assert_array_equal(paired.blade_velocity, ndem.blade_velocity)
+    assert paired.point == ndem.point and not np.array_equal(paired.velocity, ndem.velocity)
+    with pytest.raises(DozerlabError, match="different points"):
+        with_loop_fields(ndem, in_memory(1.0, 0.2, seed=2))
+    with pytest.raises(DozerlabError, match=r"different rows \(80 and 100"):
+        with_loop_fields(ndem, in_memory(1.0, 0.1, seed=2, steps=80))
+    with pytest.raises(DozerlabError, match="grid"):
+        with_loop_fields(ndem, in_memory(1.0, 0.1, seed=2, grid=(6, 6, 4)))

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import mlflow
 import numpy as np
@@ -122,6 +123,41 @@ def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     assert "grid but the model expects (8, 6, 4)" in capsys.readouterr().err
     assert main([*argv[:4], files[0], "--out", str(tracking / "leak.json")]) == 2
     assert "trained on" in capsys.readouterr().err
+
+
+def test_a_force_model_trained_on_loop_fields_says_so(tracking, store_files, config, capsys):
+    """``--loop-fields``: the reduced loop's runs of the training points give the fields, NDEM's
+    runs the force; the model, its metadata and its MLflow run say which fields it learnt."""
+    from dozerlab.reduce.models import ForcePredictor
+    from tests.helpers import write
+    from tests.learn.conftest import TRAIN_POINTS
+
+    files = [str(p) for p in store_files["train"]]
+    loops = [
+        str(write(tracking / "loop" / f"{i}.zarr", s, d, seed=40 + i))
+        for i, (s, d) in enumerate(TRAIN_POINTS[:4])
+    ]
+    out, plain = tracking / "loop_model", tracking / "plain_model"
+    argv = ["train", "--model", "linear", "--train", *files, "--config", "{}", "--out"]
+    assert main([*argv, str(plain)]) == 0
+    assert main([*argv, str(out), "--loop-fields", *loops]) == 0
+    meta = json.loads((out / "artifacts" / "meta.json").read_text())
+    assert meta["loop_fields"] == [str(Path(p).resolve()) for p in loops]
+    assert ForcePredictor(out).name == "linear-loop" and ForcePredictor(plain).name == "linear"
+    held_out = _inputs(load_store(store_files["interpolation"][0]))
+    fitted = [pyfunc.FORMAT.load(d)[0] for d in (out, plain)]
+    a, b = (pyfunc.predict_arrays(m, held_out) for m in fitted)
+    assert not np.allclose(a, b)  # other fields, another fit
+    runs = mlflow.search_runs(
+        experiment_names=["dozerlab"], filter_string="tags.rule = 'train_loop_force'"
+    )
+    assert list(runs["tags.fields"]) == ["loop"]
+    assert runs.loc[0, "params.loop_fields"] == ",".join(loops)
+    # one reduced run per training store, of the same point
+    assert main([*argv, str(tracking / "m2"), "--loop-fields", *loops[:3]]) == 2
+    assert "3 loop-field stores for 4 training stores" in capsys.readouterr().err
+    assert main([*argv, str(tracking / "m3"), "--loop-fields", *reversed(loops)]) == 2
+    assert "runs of different points" in capsys.readouterr().err
 
 
 def test_pyfunc_input_of_wrong_grid_is_refused(store_files):

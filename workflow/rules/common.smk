@@ -113,9 +113,14 @@ def dynamics_input(wildcards):
 TRAINING_RUNS = {(p.scenario, P.fmt_number(p.speed), P.fmt_number(p.depth)) for p in P.by_role(POINTS, "train")}
 
 
+def is_training_run(wildcards):
+    """Whether the job's point is one of the sweep's training points."""
+    return (wildcards.scenario, wildcards.speed, wildcards.depth) in TRAINING_RUNS
+
+
 def run_priority(wildcards):
     """1 for a training run of the sweep (its trajectory and its simulation), 0 for any other."""
-    return int((wildcards.scenario, wildcards.speed, wildcards.depth) in TRAINING_RUNS)
+    return int(is_training_run(wildcards))
 
 
 def train_priority(wildcards):
@@ -126,6 +131,21 @@ def train_priority(wildcards):
 def train_dynamics_priority(wildcards):
     """Evolution models: 2 for the U-Net, 1 for the others."""
     return 2 if wildcards.model == "unet" else 1
+
+
+def reduce_force_model(wildcards):
+    """The force model of a reduce job. With reduced.force_fields loop, the one trained on this
+    dynamics model's loop fields, but for replay (its fields are NDEM's) and on the training
+    points (whose reduced runs that model learns from); else results/models/{force_model}."""
+    r = config["reduced"]
+    if r["force_fields"] == "ndem" or wildcards.dynamics_model == "replay" or is_training_run(wildcards):
+        return str(P.model_path(RESULTS, r["force_model"]))
+    return str(P.loop_force_model_path(RESULTS, wildcards.dynamics_model))
+
+
+def loop_fields_of(dynamics_model):
+    """The reduced runs of one dynamics model on the training points, in fields_of("train")'s order."""
+    return [str(P.reduced_path(RESULTS, dynamics_model, p)) for p in P.by_role(POINTS, "train")]
 
 
 def reduced_of(dynamics_model):

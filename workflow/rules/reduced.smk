@@ -8,7 +8,7 @@ rule reduce:
         trajectory=P.pattern("trajectory"),
         # the NDEM run of the point: replay's fields, and the run the reduced one is aligned with
         ndem=P.pattern("field"),
-        force_model=lambda wc: str(P.model_path(RESULTS, config["reduced"]["force_model"])),
+        force_model=reduce_force_model,
         dynamics=dynamics_input,
     output:
         store=directory(P.pattern("reduced")),
@@ -21,6 +21,8 @@ rule reduce:
     resources:
         **cluster.job_resources(config, "reduce"),
     threads: config["threads"]["simulate"]
+    # the training points' runs first: the loop's force model learns from them
+    priority: run_priority
     params:
         cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
         dynamics=lambda wc, input: input.dynamics or "replay",
@@ -29,6 +31,29 @@ rule reduce:
         " --dynamics {params.dynamics:q} --ndem {input.ndem:q} --force-model {input.force_model:q}"
         " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads}"
         " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth} > {log:q} 2>&1"
+
+
+# The loop's force model (reduced.force_fields: loop): the force model fitted to the fields this
+# dynamics model's loop makes at the training points, paired row by row with NDEM's force.
+rule train_loop_force:
+    input:
+        ndem=fields_of("train"),
+        loop=lambda wc: loop_fields_of(wc.dynamics_model),
+    output:
+        directory(P.pattern("loop_force_model")),
+    log:
+        "logs/train_loop_force/{dynamics_model}.log",
+    wildcard_constraints:
+        dynamics_model="persistence|ridge|unet",  # replay's fields are NDEM's: results/models
+    threads: config["threads"]["train"]
+    resources:
+        **cluster.job_resources(config, "train_loop_force"),
+    params:
+        cfg=lambda wc: config_json("seed", "learn", "mlflow"),
+        model=config["reduced"]["force_model"],
+    shell:
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab train --model {params.model} --train {input.ndem:q}"
+        " --loop-fields {input.loop:q} --config {params.cfg:q} --out {output:q} --threads {threads} > {log:q} 2>&1"
 
 
 rule compare_reduced:

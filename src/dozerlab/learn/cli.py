@@ -29,11 +29,12 @@ def add_training(
     results: str = "models",
     threads_key: str = "train",
     report: tuple[str, str, str] = ("", "best validation loss", "samples"),
+    loop_fields: bool = False,
 ) -> None:
     """A training command: ``--model`` (one of ``models``) trained on ``--train`` stores into
     ``--out`` (``results/{results}/NAME``) by the job ``run`` (``module:function``); ``report``
-    (prefix, loss, samples) words the line it prints. The defaults are those of the force
-    models' ``train``."""
+    (prefix, loss, samples) words the line it prints; ``loop_fields`` adds ``--loop-fields``.
+    The defaults are those of the force models' ``train``."""
     p = sub.add_parser(name, help=help)
     p.add_argument("--model", required=True, choices=models, help="model name")
     p.add_argument(
@@ -47,6 +48,15 @@ def add_training(
     p.add_argument(
         "--device", default=None, help="torch device (default: cuda if present, else cpu)"
     )
+    if loop_fields:
+        p.add_argument(
+            "--loop-fields",
+            nargs="+",
+            default=None,
+            metavar="F.zarr",
+            help="the reduced loop's runs of the --train points, in the same order: their "
+            "velocity and density replace NDEM's (the force model of the reduced loop)",
+        )
     p.set_defaults(func=_train, threads_key=threads_key, run=run, report=report)
 
 
@@ -81,6 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "train",
         "train one force/torque model on field stores",
         run="dozerlab.learn.jobs:train_job",
+        loop_fields=True,
     )
     add_validation(
         sub,
@@ -98,7 +109,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _train(args: argparse.Namespace) -> int:
     config = configure(args, args.threads_key)
-    result = job(args.run)(args.model, args.train, config, args.out, device=args.device)
+    extra = {"loop_fields": args.loop_fields} if getattr(args, "loop_fields", None) else {}
+    result = job(args.run)(args.model, args.train, config, args.out, device=args.device, **extra)
     prefix, loss, samples = args.report
     print(
         f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch} "

@@ -17,7 +17,7 @@ training samples, so its loss is optimistic; the held-out points are the real me
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -173,6 +173,32 @@ def check_grid(
                 f"{list(size)} m; models only apply to stores sampled with the same sampling volume and bins"
             )
     return expected
+
+
+def with_loop_fields(ndem: StoreData, loop: StoreData) -> StoreData:
+    """``ndem``'s samples with the velocity and density of ``loop``, the reduced loop's run of
+    the same point: the fields the loop makes, paired row by row with NDEM's force and torque.
+
+    A force model fitted to NDEM's fields reads the loop's fields wrongly (the learned fields
+    are not NDEM's: taller, noisier piles); fitted to these it learns the force the loop's
+    fields stand for. The two stores must be of one point, grid and bin size, with the same
+    row times (a reduced store has one row per NDEM row); DozerlabError otherwise.
+    """
+    what = f"{loop.source or loop.name} (loop fields) and {ndem.source or ndem.name} (NDEM)"
+    if point_key(loop.point) != point_key(ndem.point):
+        raise DozerlabError(f"{what} are runs of different points: {loop.point} and {ndem.point}")
+    check_grid([ndem, loop])
+    if loop.time.shape != ndem.time.shape or not np.allclose(loop.time, ndem.time, atol=1e-6):
+        raise DozerlabError(
+            f"{what} have different rows ({loop.time.size} and {ndem.time.size}, or other "
+            "times): a reduced run of the point gives one row per NDEM row"
+        )
+    return replace(
+        ndem,
+        velocity=loop.velocity,
+        density=loop.density,
+        source=f"{ndem.source} with the fields of {loop.source}",
+    )
 
 
 @dataclass

@@ -13,12 +13,12 @@ import numpy as np
 
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
-from dozerlab.learn.data import StoreData, check_grid, load_store, point_key
+from dozerlab.learn.data import StoreData, check_grid, load_store, point_key, with_loop_fields
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import EpochCallback, TrainResult, train_model
 from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
-from dozerlab.runtime import OutputKind, atomic_output, check_output, json_with
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, check_output, json_with
 from dozerlab.tracking import JobRun
 
 #: What ``validate`` writes beside its plots: the metrics JSON.
@@ -115,22 +115,43 @@ def train_job(
     device: str | None = None,
     progress: bool = True,
     family: Family = FORCE,
+    loop_fields: list[str | Path] | None = None,
 ) -> TrainResult:
     """Train model ``kind`` of ``family`` on the stores ``train``; save the MLflow model
     directory at ``out`` and log the run (params, per-epoch losses, final training metrics,
-    loss plot, model)."""
+    loss plot, model).
+
+    ``loop_fields`` (force models only): the reduced loop's runs of the same points, one per
+    store of ``train`` in the same order, whose velocity and density replace NDEM's
+    (:func:`~dozerlab.learn.data.with_loop_fields`): the force model of the reduced loop,
+    the workflow's rule ``train_loop_force``.
+    """
     check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
     stores = [load_store(p) for p in train]
+    rule, tags = family.rule, {"model": kind}
+    if loop_fields:
+        if family is not FORCE:
+            raise DozerlabError("only force models are trained on the reduced loop's fields")
+        if len(loop_fields) != len(train):
+            raise DozerlabError(
+                f"{len(loop_fields)} loop-field stores for {len(train)} training stores: "
+                "give one reduced run per training store, in the same order"
+            )
+        stores = [
+            with_loop_fields(s, load_store(f)) for s, f in zip(stores, loop_fields, strict=True)
+        ]
+        rule, tags = "train_loop_force", tags | {"fields": "loop"}
     check_grid(stores)  # counts and sizes of the bins agree
     seed = config.get("seed")
     meta_parts, param_parts = family.recorded(config)
     meta = {**training_meta(stores, train), **meta_parts, "seed": seed}
     params = {"model": kind, "seed": seed, **param_parts}
     params["train_stores"] = ",".join(str(p) for p in train)
-    name = f"{family.title}{kind}"
-    with tracking.job_run(
-        config, f"train {name}", rule=family.rule, tags={"model": kind}, params=params
-    ) as run:
+    if loop_fields:
+        meta["loop_fields"] = [str(Path(p).resolve()) for p in loop_fields]
+        params["loop_fields"] = ",".join(str(p) for p in loop_fields)
+    name = f"{family.title}{kind}" + (" on the loop's fields" if loop_fields else "")
+    with tracking.job_run(config, f"train {name}", rule=rule, tags=tags, params=params) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress

@@ -114,14 +114,17 @@ class ForcePredictor:
     """A trained force model (``results/models/{model}/``), read directly from its MLflow
     pyfunc directory (``FORMAT.load``, as :class:`PyfuncFieldModel`).
 
-    Attributes: ``history`` (rows of fields it reads), ``name``.
+    Attributes: ``history`` (rows of fields it reads), ``name`` (the model's kind, ``-loop``
+    added for one trained on a reduced loop's fields).
     """
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
-        self.module, _meta = FORCE_FORMAT.load(path)
+        self.module, meta = FORCE_FORMAT.load(path)
         self.history = int(self.module.history)
-        self.name = path.name
+        # a model trained on a reduced loop's fields (rule train_loop_force) reads "<kind>-loop"
+        kind = str(meta.get("kind") or path.name)
+        self.name = f"{kind}-loop" if meta.get("loop_fields") else kind
 
     def predict(
         self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray

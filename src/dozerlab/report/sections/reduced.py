@@ -77,6 +77,17 @@ def render(ctx: Context) -> str | None:
                     "(advection, projection, what the fields cannot carry) alone."
                 )
             )
+        forces = sorted({str(p.get("force_model")) for p in doc["points"]})
+        parts.append(
+            html.paragraph(
+                f"force model: {', '.join(forces)}"
+                + (
+                    " (trained on the fields this model's loop makes at the training points)"
+                    if any(f.endswith("-loop") for f in forces)
+                    else ""
+                )
+            )
+        )
         parts.append(
             html.table(
                 COLUMNS,
