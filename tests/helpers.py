@@ -368,3 +368,17 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
         "train_loop_force": len(looped),
         "compare_reduced": len(reduced),
     }
+
+
+def imported_by(code: str, libraries: tuple[str, ...]) -> list[str]:
+    """Which of the top-level ``libraries`` a fresh interpreter has imported after running
+    ``code`` (sorted)."""
+    import subprocess
+    import sys
+
+    probe = (
+        f"{code}\nimport json, sys\n"
+        f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({libraries!r}))))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], check=True, capture_output=True, text=True)
+    return list(json.loads(out.stdout.strip().splitlines()[-1]))

@@ -3,14 +3,13 @@ layer (``config``, ``mlflow-start``, ``mlflow-end``), and errors a user can fix 
 traceback."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 import yaml
 
 from dozerlab.cli import build_parser, main
 from dozerlab.config import load_config
+from tests.helpers import imported_by
 
 COMMANDS = [
     "config",
@@ -87,29 +86,18 @@ def test_mlflow_end_offers_only_the_known_statuses(capsys):
 
 
 def test_listing_the_commands_imports_no_heavy_library():
-    code = (
-        "import sys\n"
-        "from dozerlab.cli import build_parser\n"
-        "build_parser()\n"
-        "heavy = ('numpy', 'numba', 'torch', 'mlflow', 'xarray', 'zarr', 'matplotlib', 'yaml')\n"
-        "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy)))\n"
-    )
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
-    assert out.stdout.strip() == "[]"
+    heavy = ("numpy", "numba", "torch", "mlflow", "xarray", "zarr", "matplotlib", "yaml")
+    assert imported_by("from dozerlab.cli import build_parser\nbuild_parser()", heavy) == []
 
 
 def test_the_simulate_and_reduce_jobs_import_no_table_or_tracking_library():
     """xarray and pandas cost 0.3-0.4 s a job to import, MLflow 1-2 s: a workflow job's run is
     spooled, and neither job reads a store through xarray."""
     code = (
-        "import sys\n"
         "import dozerlab.fields.jobs, dozerlab.fields.run, dozerlab.reduce.jobs\n"
-        "import dozerlab.reduce.models, dozerlab.reduce.run\n"
-        "heavy = ('xarray', 'pandas', 'mlflow', 'matplotlib')\n"
-        "print(sorted({m.split('.')[0] for m in sys.modules} & set(heavy)))\n"
+        "import dozerlab.reduce.models, dozerlab.reduce.run"
     )
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
-    assert out.stdout.strip() == "[]"
+    assert imported_by(code, ("xarray", "pandas", "mlflow", "matplotlib")) == []
 
 
 def test_the_internal_commands_are_hidden_from_help(capsys):
