@@ -126,7 +126,7 @@ def settle_zarr_io(timeout_s: float = 60.0) -> None:
     zarr runs a write as a coroutine on its own event-loop thread while the caller waits for it.
     A signal that ends the caller's wait (SIGTERM raising ``SystemExit``, Ctrl-C) leaves the
     coroutine writing: a temporary removed at that moment got chunk files back, or its removal
-    failed on a directory filled under it (2 of 30 SIGTERMs mid-write, two cores busy). Call
+    failed on a directory filled under it (6 of 100 SIGTERMs mid-write, two cores busy). Call
     this before removing a store that an exception interrupted.
     """
     loop = zarr_sync.loop[0]
