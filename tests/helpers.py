@@ -364,7 +364,8 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
         "validate": len(models),
         "train_dynamics": len(dynamics),
         "validate_dynamics": len(dynamics),
-        "reduce": len(reduced) * len(held_out) + len(looped) * training,
+        "reduce": len(reduced) * len(held_out),
+        "reduce_training_points": len(looped) * training,  # one job per model, a run per point
         "train_loop_force": len(looped),
         "compare_reduced": len(reduced),
     }

@@ -29,6 +29,7 @@ COMMANDS = [
     "train-dynamics",
     "validate-dynamics",
     "reduce",
+    "reduce-points",
     "compare-reduced",
 ]
 

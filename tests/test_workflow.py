@@ -173,6 +173,11 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
             assert trained_on == [
                 str(P.reduced_path(results, model, p).resolve()) for p in P.by_role(POINTS, "train")
             ]
+            # those runs, one job's, were driven by the force model fitted to NDEM's fields
+            for p in P.by_role(POINTS, "train"):
+                ds = open_store(P.reduced_path(results, model, p))
+                assert ds.attrs["force_model"] == CFG["reduced"]["force_model"]
+            assert P.reduce_training_benchmark_path(results, model).is_file()
         summary = json.loads(P.reduced_comparison_path(results, model).read_text())
         assert {(p["scenario"], p["speed"], p["depth"]) for p in summary["points"]} == {
             (p.scenario, p.speed, p.depth) for p in HELD_OUT
@@ -400,10 +405,17 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
         assert done.returncode == 0, done.stderr[-3000:]
         jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
         assert jobs.count("train_loop_force") == loop_jobs
-        assert jobs.count("reduce") == 4 + 4 * loop_jobs  # + ridge's runs of the 4 training points
-        forces = set(re.findall(r"--force-model (\S+)", done.stdout))
-        models = {"results/models/linear"}
-        assert forces == (models | {"results/reduced/ridge/force_model"} if loop_jobs else models)
+        assert jobs.count("reduce") == 4
+        # ridge's runs of the 4 training points, in one job, with the NDEM-fitted force model
+        assert jobs.count("reduce_training_points") == loop_jobs
+        forces = re.findall(r"dozerlab (reduce\S*) .*?--force-model (\S+)", done.stdout)
+        models = {("reduce", "results/models/linear")}  # replay's, and ridge's under ndem
+        if loop_jobs:
+            models |= {
+                ("reduce", "results/reduced/ridge/force_model"),
+                ("reduce-points", "results/models/linear"),
+            }
+        assert set(forces) == models
 
 
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):

@@ -25,6 +25,7 @@ RULES = (
     "train_dynamics",
     "validate_dynamics",
     "reduce",
+    "reduce_training_points",
     "train_loop_force",
     "compare_reduced",
     "report",
@@ -38,6 +39,7 @@ THREADED = {
     "train": "train",
     "train_dynamics": "dynamics",
     "reduce": "simulate",  # the NDEM run's threads: the speed-up compares the two at equal threads
+    "reduce_training_points": "simulate",
     "train_loop_force": "train",
     "report": "report",
 }

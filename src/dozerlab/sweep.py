@@ -147,6 +147,7 @@ PATHS = {
     "reduced": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.zarr",
     "reduced_state": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.npz",
     "reduce_benchmark": f"benchmarks/reduce/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.tsv",
+    "reduce_training_benchmark": "benchmarks/reduce/{dynamics_model}/training_points.tsv",
     "reduced_comparison": "reduced/{dynamics_model}.json",
     "reduced_comparison_plots": "reduced/{dynamics_model}/compare",
     "loop_force_model": "reduced/{dynamics_model}/force_model",
@@ -247,6 +248,10 @@ reduced_comparison_path = _per_model("reduced_comparison", "the reduced runs mea
 loop_force_model_path = _per_model(
     "loop_force_model",
     "the force model trained on that dynamics model's loop fields (an MLflow pyfunc directory)",
+)
+reduce_training_benchmark_path = _per_model(
+    "reduce_training_benchmark",
+    "Snakemake's benchmark record of that dynamics model's runs of the training points (one job)",
 )
 model_path = _per_model("model", "an MLflow pyfunc model directory")
 validation_path = _per_model("validation", "held-out metrics of one model")

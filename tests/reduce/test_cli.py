@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 
@@ -42,3 +43,33 @@ def test_a_missing_dynamics_model_is_refused(ndem_run, capsys):
     assert main(_reduce_argv(tmp, str(tmp / "nowhere"), "x")) == 2
     assert "not an MLflow model directory" in capsys.readouterr().err
     assert not (tmp / "x.zarr").exists()
+
+
+def test_reduce_points_reads_and_writes_the_workflows_paths(ndem_run, tmp_path, capsys):
+    from dozerlab import sweep as P
+
+    tmp, _ = ndem_run
+    results = tmp_path / "results"
+    point = P.SweepPoint("hill", 0.5, 0.06)
+    for src, dest in (
+        (tmp / "bed.npz", P.bed_path(results, "hill")),
+        (tmp / "speed~0.5_depth~0.06.csv", P.trajectory_path(results, point)),
+    ):
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(src, dest)
+    shutil.copytree(tmp / "ndem.zarr", P.field_path(results, point))
+    argv = [
+        *("reduce-points", "--results", str(results), "--dynamics-model", "replay"),
+        *("--dynamics", "replay", "--force-model", str(tmp / "linear")),
+        *("--config", json.dumps(CONFIG), "--points"),
+    ]
+    assert main([*argv, "hill/speed~0.5_depth~fast"]) == 2
+    assert "is not named speed~{speed}_depth~{depth}" in capsys.readouterr().err
+    assert not (results / "reduced").exists()
+    assert main([*argv, "hill/speed~0.5_depth~0.06"]) == 0
+    assert "reduced run hill/speed~0.5_depth~0.06:" in capsys.readouterr().out
+    ds = open_store(P.reduced_path(results, "replay", point))
+    assert ds.attrs["scenario"] == "hill" and ds.attrs["depth"] == 0.06
+    assert ds.attrs["dynamics_model"] == "replay" and ds.attrs["force_model"] == "linear"
+    np.testing.assert_allclose(ds["time"].values, open_store(tmp / "ndem.zarr")["time"].values)
+    assert Bed.load(P.reduced_path(results, "replay", point, "npz")).count > 0

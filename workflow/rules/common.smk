@@ -143,9 +143,18 @@ def reduce_force_model(wildcards):
     return str(P.loop_force_model_path(RESULTS, wildcards.dynamics_model))
 
 
+TRAINING_POINTS = P.by_role(POINTS, "train")
+
+
 def loop_fields_of(dynamics_model):
     """The reduced runs of one dynamics model on the training points, in fields_of("train")'s order."""
-    return [str(P.reduced_path(RESULTS, dynamics_model, p)) for p in P.by_role(POINTS, "train")]
+    return [str(P.reduced_path(RESULTS, dynamics_model, p)) for p in TRAINING_POINTS]
+
+
+def training_loop_runs(ext):
+    """The reduced stores (zarr) or final states (npz) of the training points, {dynamics_model}
+    left a wildcard (rule reduce_training_points)."""
+    return [str(P.reduced_path(RESULTS, "{dynamics_model}", p, ext)) for p in TRAINING_POINTS]
 
 
 def reduced_of(dynamics_model):

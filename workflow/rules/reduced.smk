@@ -33,6 +33,43 @@ rule reduce:
         " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth} > {log:q} 2>&1"
 
 
+# The runs the loop's force model learns from (reduced.force_fields: loop): one learned dynamics
+# model's loop on every training point, in one process (a one-point reduce job spends 2.6 s of its
+# 7 starting). These paths are this rule's, not reduce's, whichever job asks for them.
+ruleorder: reduce_training_points > reduce
+
+
+rule reduce_training_points:
+    input:
+        beds=[str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in TRAINING_POINTS})],
+        trajectories=[str(P.trajectory_path(RESULTS, p)) for p in TRAINING_POINTS],
+        ndem=fields_of("train"),
+        force_model=str(P.model_path(RESULTS, config["reduced"]["force_model"])),
+        dynamics=dynamics_input,
+    output:
+        stores=[directory(s) for s in training_loop_runs("zarr")],
+        states=training_loop_runs("npz"),
+    benchmark:
+        P.pattern("reduce_training_benchmark")
+    log:
+        "logs/reduce_training_points/{dynamics_model}.log",
+    wildcard_constraints:
+        dynamics_model="persistence|ridge|unet",  # replay's fields are NDEM's: no loop force model
+    resources:
+        **cluster.job_resources(config, "reduce_training_points"),
+    threads: config["threads"]["simulate"]
+    priority: 1
+    params:
+        cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
+        results=lambda wc: RESULTS,
+        points=" ".join(f"{p.scenario}/{p.name}" for p in TRAINING_POINTS),
+    shell:
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce-points --results {params.results:q}"
+        " --dynamics-model {wildcards.dynamics_model} --dynamics {input.dynamics:q}"
+        " --force-model {input.force_model:q} --points {params.points} --config {params.cfg:q}"
+        " --threads {threads} > {log:q} 2>&1"
+
+
 # The loop's force model (reduced.force_fields: loop): the force model fitted to the fields this
 # dynamics model's loop makes at the training points, paired row by row with NDEM's force.
 rule train_loop_force:
