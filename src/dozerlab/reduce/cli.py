@@ -12,16 +12,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "reduce", help="run a sweep point with the reduced loop (learned fields + projection)"
     )
     add_run_inputs(p)
-    p.add_argument(
-        "--dynamics",
-        required=True,
-        help="field-evolution model: an MLflow pyfunc directory (results/dynamics/NAME) or "
-        "'replay' (the point's NDEM fields, --ndem)",
-    )
+    _add_models(p)
     p.add_argument("--ndem", default=None, help="the point's NDEM field store (for replay)")
-    p.add_argument(
-        "--force-model", required=True, help="force model directory (results/models/NAME)"
-    )
     add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
     p.add_argument("--state", required=True, help="final particle state to write (.npz)")
@@ -40,12 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         required=True,
         help="the dynamics model's name: the runs go to RESULTS/reduced/NAME/",
     )
-    p.add_argument(
-        "--dynamics", required=True, help="as for reduce: a pyfunc directory or 'replay'"
-    )
-    p.add_argument(
-        "--force-model", required=True, help="force model directory (results/models/NAME)"
-    )
+    _add_models(p)
     p.add_argument(
         "--points",
         nargs="+",
@@ -67,6 +54,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plots", required=True, help="folder for the plots and animations")
     p.add_argument("--no-animation", action="store_true", help="skip the GIFs")
     p.set_defaults(func=_compare)
+
+
+def _add_models(p: argparse.ArgumentParser) -> None:
+    """``--dynamics`` and ``--force-model``: the two learned parts a reduced run loads."""
+    p.add_argument(
+        "--dynamics",
+        required=True,
+        help="field-evolution model: an MLflow pyfunc directory (results/dynamics/NAME) or "
+        "'replay' (the point's NDEM fields)",
+    )
+    p.add_argument(
+        "--force-model", required=True, help="force model directory (results/models/NAME)"
+    )
 
 
 def _reduce(args: argparse.Namespace) -> int:
