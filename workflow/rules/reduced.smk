@@ -21,8 +21,6 @@ rule reduce:
     resources:
         **cluster.job_resources(config, "reduce"),
     threads: config["threads"]["simulate"]
-    # the training points' runs first: the loop's force model learns from them
-    priority: run_priority
     params:
         cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
         dynamics=lambda wc, input: input.dynamics or "replay",
@@ -58,7 +56,7 @@ rule reduce_training_points:
     resources:
         **cluster.job_resources(config, "reduce_training_points"),
     threads: config["threads"]["simulate"]
-    priority: 1
+    priority: 1  # the loop's force model, which the held-out runs wait for, learns from these
     params:
         cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
         results=lambda wc: RESULTS,
