@@ -371,6 +371,15 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
     }
 
 
+def expected_jobs(cfg: dict[str, Any]) -> dict[str, int]:
+    """The jobs of :func:`expected_job_runs`' rules a sweep of ``cfg`` runs: one run each, but a
+    ``reduce_training_points`` job records a run per training point."""
+    jobs = expected_job_runs(cfg)
+    training = len(P.by_role(P.sweep_points(cfg), "train"))
+    jobs["reduce_training_points"] //= max(training, 1)
+    return jobs
+
+
 def imported_by(code: str, libraries: tuple[str, ...]) -> list[str]:
     """Which of the top-level ``libraries`` a fresh interpreter has imported after running
     ``code`` (sorted)."""
