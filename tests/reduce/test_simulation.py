@@ -56,20 +56,29 @@ def test_grains_in_the_volume_move_with_the_field_and_the_others_rest_or_fly():
     np.testing.assert_allclose(state.x[4], np.array(flying) + h * fly_v, atol=1e-12)
 
 
-def test_grains_above_the_volume_ride_with_it_and_fall_once_it_lets_them_go():
+def test_grains_above_the_volume_ride_with_its_top_and_fall_until_held_up():
     grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
     above = np.array([[0.2, 0.0, 1.6]])  # over the volume (top 0.9 m) and its 2-bin margin
     field = np.zeros((*grid.bins, 3))
     field[..., 0] = 0.02  # slower than reduced.rest_speed
-    h = 0.01
+    field[..., 2] = 0.5  # the top bins rise: the grain above them does not
+    h, g = 0.01, 9.81
     state = _state(above, np.zeros_like(above), grid)
     state.step(field, np.full(grid.bins, 1500.0), np.array([0.0, 0.0, 0.5]), h)
-    np.testing.assert_allclose(state.x[0], above[0] + [h * 0.02, 0.0, 0.0], atol=1e-12)
-    # the blade has moved on: the grain the field carried falls, slow as it was
-    z = state.x[0, 2]
+    np.testing.assert_allclose(state.x[0], above[0] + [h * 0.02, 0.0, -g * h * h], atol=1e-12)
+    # the blade has moved on: the grain keeps falling, slow as it was
     for _ in range(3):
         state.step(field, np.full(grid.bins, 1500.0), np.array([5.0, 0.0, 0.5]), h)
-    assert state.x[0, 2] == pytest.approx(z - 6 * 9.81 * h * h, rel=1e-9)  # h·g·(1 + 2 + 3)·h
+    assert state.x[0, 2] == pytest.approx(above[0, 2] - 10 * g * h * h, rel=1e-9)  # 1+2+3+4
+
+    # on a grain the field lifts, it is held up and carried along
+    x = np.array([[0.2, 0.0, 0.8605], [0.2, 0.0, 0.9005]])
+    state = _state(x, np.zeros_like(x), grid)
+    for _ in range(2):
+        state.step(field, np.full(grid.bins, 1500.0), np.array([0.0, 0.0, 0.5]), h)
+    np.testing.assert_allclose(state.x[:, 0], 0.2 + 2 * h * 0.02, atol=1e-12)
+    assert np.linalg.norm(state.x[1] - state.x[0]) == pytest.approx(0.04, abs=0.001)
+    assert state.x[1, 2] > x[1, 2]
 
 
 def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
@@ -117,3 +126,26 @@ def test_flow_is_the_fields_velocity_not_the_projections_push():
     assert not np.allclose(state.v[:2], state.flow[:2])  # the projection changed their motion
     np.testing.assert_array_equal(state.flow[2], state.v[2])
     assert state.v[2, 0] > 0.0
+
+
+@pytest.mark.parametrize(("angle", "rests"), [(45.0, False), (90.0, True)])
+def test_a_falling_grain_rests_only_where_held_up_within_the_support_angle(angle, rests):
+    # it lands on a resting grain 60° off the top: too steep a support at 45°, enough at 90°
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    below = np.array([1.0, 0.0, 0.02])
+    off = np.radians(60.0)
+    falling = below + 0.04 * np.array([np.sin(off), 0.0, np.cos(off)]) + [0.0, 0.0, 0.005]
+    x = np.vstack([below, falling])
+    v = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    state = _state(x, v, grid, ReducedSettings(support_angle=angle))
+    state.step(np.zeros((*grid.bins, 3)), np.zeros(grid.bins), np.array([-5.0, 0.0, 0.5]), 0.01)
+    assert np.linalg.norm(state.x[1] - state.x[0]) > 0.039  # pushed out of the grain below
+    assert bool(state.moving[1]) is not rests
+    assert bool(np.linalg.norm(state.v[1]) == 0.0) is rests
+
+    # flat ground holds it at 45° too
+    x = np.array([[1.0, 0.0, 0.025]])
+    state = _state(x, np.array([[0.0, 0.0, -1.0]]), grid, ReducedSettings(support_angle=angle))
+    state.step(np.zeros((*grid.bins, 3)), np.zeros(grid.bins), np.array([-5.0, 0.0, 0.5]), 0.01)
+    assert not state.moving[0]
+    assert state.x[0, 2] == pytest.approx(0.02)
