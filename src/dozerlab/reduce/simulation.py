@@ -14,9 +14,8 @@ k-1 to row k, with the blade tip at p_k:
    against 66 % with 2 bins, BENCHMARKS.md); a grain above the volume keeps the top bins'
    horizontal velocity and falls until the grains below hold it up; a grain outside that
    region that is moving flies ballistically under gravity — a grain the field carried out of
-   the region, or one in
-   flight, moves until it has landed, one only nudged by the projection until it is slower
-   than ``reduced.rest_speed``; one at rest stays frozen;
+   the region, or one in flight, moves until it has landed, one only nudged by the projection
+   until it is slower than ``reduced.rest_speed``; one at rest stays frozen;
 3. **projection**: the grains that moved, the grains the blade box reaches and every grain
    within reach of those (frozen ones too: they yield with their own mass, as a bed pushed by
    the pile does) are projected out of overlap with each other, the ground, the walls, the
