@@ -8,7 +8,7 @@ import pytest
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce import projection
 from dozerlab.reduce.compare import body_penetration
-from dozerlab.reduce.projection import METHODS, Bodies, project
+from dozerlab.reduce.projection import METHODS, Bodies, largest_movable_overlap, project
 
 
 def bodies(*, box: bool = True) -> Bodies:
@@ -71,6 +71,27 @@ def test_a_pile_converges_and_nothing_ends_inside_a_body():
     assert body_penetration(x, r, bodies()) <= 1e-12
 
 
+def test_sweeps_that_run_out_above_the_overlap_limit_are_followed_by_another_round():
+    rng = np.random.default_rng(3)
+    x = rng.uniform([0.0, -0.3, 0.0], [0.9, 0.3, 0.4], size=(300, 3))
+    r = np.full(300, 0.04)
+    runs = {}
+    for limit in (np.inf, 1.0, 0.1):
+        y = x.copy()
+        stats = project(
+            y, r, np.ones(300), bodies(), iterations=3, relaxation=1.5, overlap_limit=limit
+        )
+        runs[limit] = y, stats
+    (free, s_free), (loose, s_loose), (held, s_held) = runs.values()
+    assert s_free.max_overlap > 0.1  # three sweeps a round leave this pile overlapping
+    # a limit above what is left changes nothing
+    np.testing.assert_array_equal(loose, free)
+    assert s_loose == s_free
+    assert s_held.sweeps > s_free.sweeps
+    assert s_held.max_overlap <= 0.1
+    assert largest_movable_overlap(held, r, np.ones(300)) == pytest.approx(s_held.max_overlap)
+
+
 def test_bad_arguments_are_refused():
     x = np.zeros((1, 3))
     with pytest.raises(ValueError, match="projection method"):
@@ -79,6 +100,8 @@ def test_bad_arguments_are_refused():
         project(x, np.ones(1), np.ones(1), bodies(), iterations=-1)
     with pytest.raises(ValueError, match="tolerance"):
         project(x, np.ones(1), np.ones(1), bodies(), iterations=1, tolerance=-0.1)
+    with pytest.raises(ValueError, match="overlap_limit"):
+        project(x, np.ones(1), np.ones(1), bodies(), iterations=1, overlap_limit=0.0)
 
 
 def pile(n: int = 300, seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

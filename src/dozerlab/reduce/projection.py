@@ -361,6 +361,7 @@ def project(
     relaxation: float = 1.0,
     slop: float = 0.0,
     tolerance: float = 0.0,
+    overlap_limit: float = np.inf,
     margin: float | None = None,
 ) -> ProjectionStats:
     """Project positions ``x`` (N, 3) m out of overlap in place.
@@ -377,6 +378,8 @@ def project(
             by compliant NDEM contacts holds such overlaps, and undoing it would push it apart.
         tolerance: the sweeps stop after one whose largest correction is at most this fraction
             of the smaller radius (>= 0; 0: only once a sweep corrects nothing).
+        overlap_limit: a round whose sweeps leave a larger overlap (fraction of the smaller
+            radius; they ran out of ``iterations``) is followed by another, up to ``ROUNDS``.
         margin: contact search margin, m (default: half the smallest radius): contacts that
             close during the projection are caught if they start within it; a sphere moved
             further sends the projection to a fresh contact search (up to ``ROUNDS`` rounds).
@@ -389,6 +392,8 @@ def project(
         raise ValueError(f"projection iterations must be >= 0, got {iterations}")
     if tolerance < 0:
         raise ValueError(f"projection tolerance must be >= 0, got {tolerance}")
+    if not overlap_limit > 0:
+        raise ValueError(f"projection overlap_limit must be > 0, got {overlap_limit}")
     if x.shape[0] == 0:
         return ProjectionStats(0.0, 0.0, 0, 0)
     r0 = np.asarray(radii, dtype=np.float64)
@@ -407,12 +412,13 @@ def project(
         # sphere has moved more than the margin since (sweeps and push-out), it holds every
         # contact and its largest overlap is every pair's. Otherwise a contact may have closed
         # unlisted: search afresh, and project again if one did.
-        if _largest_step(x, start) <= m:
+        if _largest_step(x, start) > m:
+            fresh = largest_movable_overlap(x, r0, w0)
+            if fresh > total.max_overlap:
+                total.max_overlap = fresh
+                continue
+        if total.max_overlap <= overlap_limit:
             break
-        fresh = largest_movable_overlap(x, r0, w0)
-        if fresh <= total.max_overlap:
-            break
-        total.max_overlap = fresh
     return total
 
 
@@ -427,7 +433,8 @@ def _largest_step(x, start):  # pragma: no cover - compiled
 
 
 #: Projection rounds at most (each a contact search, sweeps and push-out): a round more runs
-#: only when a fresh search finds a contact overlapping more than the last round's list holds.
+#: only when a fresh search finds a contact overlapping more than the last round's list holds,
+#: or when the sweeps ran out with an overlap above ``overlap_limit``.
 ROUNDS = 3
 
 

@@ -87,6 +87,7 @@ class ReducedSettings:
     relaxation: float = 1.5
     slop: float = 0.05
     tolerance: float = 0.02
+    overlap_limit: float = 0.1
     advect_margin: float = 2.0
     rest_speed: float = 0.05
     support_angle: float = 60.0
@@ -102,6 +103,7 @@ class ReducedSettings:
             relaxation=float(p["relaxation"]),
             slop=float(p["slop"]),
             tolerance=float(p["tolerance"]),
+            overlap_limit=float(p["overlap_limit"]),
             advect_margin=float(r["advect_margin"]),
             rest_speed=float(r["rest_speed"]),
             support_angle=float(r["support_angle"]),
@@ -176,6 +178,42 @@ def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # 
             movable[count] = mark >= 2
             count += 1
     return inside, near, chosen[:count], movable[:count]
+
+
+@njit(cache=True)
+def _settle(
+    x, v, moving, flow, sel, x0, xs, vs, ins, bal, near, h, cos_angle, rest_speed
+):  # pragma: no cover - compiled
+    """Write the projected grains ``sel`` (S,) back: positions ``xs`` (S, 3) m into ``x``, and
+    into ``v``, ``moving`` and ``flow`` (N, …) what they are doing now (step 3 of the module
+    doc), from their start ``x0`` and the field's or flight's velocity ``vs`` (S, 3) m/s.
+
+    A grain outside the volume (``ins`` False) and not near the blade that the projection
+    pushed up within the support cone (``cos_angle``: the cosine of its half angle) has landed
+    and rests; a grain only the projection nudged (neither ``ins`` nor ``bal``, ballistic)
+    rests once no faster than ``rest_speed``; any other is moving with its displacement over
+    ``h`` s. Its flow is ``vs`` if the field or its flight moved it, else that velocity.
+    """
+    slow = rest_speed * rest_speed
+    for q in range(sel.shape[0]):
+        p = sel[q]
+        push2 = 0.0  # |projection's push|²: where it left the grain against where it sent it
+        speed2 = 0.0
+        for a in range(3):
+            d = xs[q, a] - (x0[q, a] + h * vs[q, a])
+            push2 += d * d
+            v[p, a] = (xs[q, a] - x0[q, a]) / h
+            speed2 += v[p, a] * v[p, a]
+        push_z = xs[q, 2] - (x0[q, 2] + h * vs[q, 2])
+        carried = ins[q] or bal[q]
+        landed = not ins[q] and not near[q] and push_z > cos_angle * np.sqrt(push2)
+        still = landed or (not carried and speed2 <= slow)
+        moving[p] = not still
+        for a in range(3):
+            if still:
+                v[p, a] = 0.0
+            x[p, a] = xs[q, a]
+            flow[p, a] = vs[q, a] if carried else v[p, a]
 
 
 def _in_box(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -330,6 +368,7 @@ class ReducedState:
             relaxation=s.relaxation,
             slop=s.slop,
             tolerance=s.tolerance,
+            overlap_limit=s.overlap_limit,
         )
         if not np.isfinite(xs).all():
             raise DozerlabError("reduced step produced non-finite positions")
@@ -353,23 +392,22 @@ class ReducedState:
         # steeper slope it slides on (resting wherever anything pushed it up, piles stood
         # steeper than NDEM's: 46.1 % mean height accuracy against 47.3 % at 60° with the
         # truth fields on four training points of the default sweep, BENCHMARKS.md)
-        push = xs - (x0 + h * vs)
-        cone = np.cos(np.radians(s.support_angle)) * np.linalg.norm(push, axis=1)
-        landed = ~ins & ~near_blade[sel] & (push[:, 2] > cone)
-        vnew = (xs - x0) / h
-        vnew[landed] = 0.0
-        speed = np.linalg.norm(vnew, axis=1)
-        # A grain the field or its flight moved falls until something holds it up (landed): left
-        # at rest where the field let it go, piles of grains stood in the air behind the blade
-        # (17.6 % height accuracy with the truth fields on step 1.0/0.12, BENCHMARKS.md). A
-        # grain only the projection nudged rests once slow.
-        rest = ~ins & ~bal & (speed <= s.rest_speed)
-        vnew[rest] = 0.0
-        self.x[sel] = xs
-        self.v[sel] = vnew
-        self.moving[sel] = ins | bal | (speed > s.rest_speed)
-        self.moving[sel[landed | rest]] = False
-        self.flow[sel] = np.where((ins | bal)[:, None], vs, vnew)
+        _settle(
+            self.x,
+            self.v,
+            self.moving,
+            self.flow,
+            sel,
+            x0,
+            xs,
+            vs,
+            ins,
+            bal,
+            near_blade[sel],
+            h,
+            np.cos(np.radians(s.support_angle)),
+            s.rest_speed,
+        )
         self.last = stats
         times.add("projection", t0)
         return stats

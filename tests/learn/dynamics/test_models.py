@@ -95,3 +95,27 @@ def test_wrong_shapes_are_refused_with_the_expected_ones():
         model(v, rho, vb[:, :2])
     with pytest.raises(DozerlabError, match="history = 2"):
         model(v[:, :1], rho[:, :1], vb)
+
+
+def test_the_ridge_stencil_is_its_design_rows_times_its_weights():
+    # forward sums by parts what the closed-form fit's design rows (feature c·27 + 9i + 3j + k,
+    # edges replicated) times the weights give: a model fitted on design rows predicts with them
+    model = DynamicsModel("ridge", GRID, 2, 1, DT, BIN)
+    net = model.net
+    torch.manual_seed(0)
+    with torch.no_grad():
+        net.weight.normal_()
+        net.bias.normal_()
+        x = torch.randn(2, net.weight.shape[1] // 27, *GRID)
+        c = torch.randn(2, 9)
+        rows = net.design(x, model.coords, c)
+        b, nx, ny, nz = x.shape[0], *GRID
+        pad = torch.nn.functional.pad(x, (1, 1, 1, 1, 1, 1), mode="replicate")
+        i, j, k, ch = 2, 1, 0, 3  # one stencil feature, read off the padded grid directly
+        np.testing.assert_array_equal(
+            rows[..., ch * 27 + 9 * i + 3 * j + k].numpy(),
+            pad[:, ch, i : i + nx, j : j + ny, k : k + nz].reshape(b, nx, ny * nz).numpy(),
+        )
+        want = torch.einsum("bxnd,xdo->bxno", rows, net.weight) + net.bias[None, :, None, :]
+        got = net(x, model.coords, c).permute(0, 2, 3, 4, 1).reshape(b, nx, ny * nz, -1)
+        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-4)

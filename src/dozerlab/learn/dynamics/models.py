@@ -48,20 +48,46 @@ class RidgeStencil(nn.Module):
         self.weight = nn.Parameter(torch.zeros(layers, d, outputs))
         self.bias = nn.Parameter(torch.zeros(layers, outputs))
 
+    @staticmethod
+    def stencil(x: torch.Tensor) -> torch.Tensor:
+        """Each bin's 3×3×3 neighbourhood of ``x`` (B, C, X, Y, Z) as (B, X, Y·Z, 27, C),
+        neighbour 9i + 3j + k (edges replicated).
+
+        Stacked from 27 shifted views of the channel-last padded grid: contiguous writes, where
+        reshaping the unfolded grid gathered element by element (0.4 ms against 1.5 ms on the
+        default grid, a third of a reduced step's field inference)."""
+        b, ch, nx, ny, nz = x.shape
+        pad = F.pad(x, (1, 1, 1, 1, 1, 1), mode="replicate").permute(0, 2, 3, 4, 1).contiguous()
+        shifted = [
+            pad[:, i : i + nx, j : j + ny, k : k + nz]
+            for i in range(3)
+            for j in range(3)
+            for k in range(3)
+        ]
+        return torch.stack(shifted, dim=-2).reshape(b, nx, ny * nz, 27, ch)
+
     def design(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        """Design rows (B, X, Y·Z, 27·C + 3 + cond): the stencil, the position, the control."""
-        b, ch, *grid = x.shape
-        pad = F.pad(x, (1, 1, 1, 1, 1, 1), mode="replicate")
-        st = pad.unfold(2, 3, 1).unfold(3, 3, 1).unfold(4, 3, 1)  # B, C, X, Y, Z, 3, 3, 3
+        """Design rows (B, X, Y·Z, 27·C + 3 + cond): the stencil (feature c·27 + neighbour), the
+        position, the control."""
+        b, _, *grid = x.shape
         n = grid[1] * grid[2]
-        st = st.permute(0, 2, 3, 4, 1, 5, 6, 7).reshape(b, grid[0], n, ch * 27)
+        st = self.stencil(x).transpose(-1, -2).flatten(-2)
         pos = coords.permute(1, 2, 3, 0).reshape(1, grid[0], n, 3).expand(b, -1, -1, -1)
         cond = c[:, None, None, :].expand(-1, grid[0], n, -1)
         return torch.cat([st, pos, cond], dim=-1)
 
     def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
-        b, _, *grid = x.shape
-        out = torch.einsum("bxnd,xdo->bxno", self.design(x, coords, c), self.weight)
+        """The design rows times the weights, by parts (the same sums as ``design`` @ weight):
+        the stencil in its stacked order against the weights reordered to it, the position's
+        and the control's terms added without copying them into every row."""
+        b, ch, *grid = x.shape
+        d = 27 * ch
+        w = self.weight
+        w_st = w[:, :d].unflatten(1, (ch, 27)).transpose(1, 2).flatten(1, 2)
+        out = torch.einsum("bxnd,xdo->bxno", self.stencil(x).flatten(-2), w_st)
+        pos = coords.permute(1, 2, 3, 0).reshape(grid[0], grid[1] * grid[2], 3)
+        out = out + torch.einsum("xnp,xpo->xno", pos, w[:, d : d + 3])[None]
+        out = out + torch.einsum("bc,xco->bxo", c, w[:, d + 3 :])[:, :, None, :]
         out = out + self.bias[None, :, None, :]
         return out.reshape(b, *grid, -1).permute(0, 4, 1, 2, 3)
 
