@@ -1,6 +1,7 @@
 """One-sample inference of the networks the reduced loop calls each step: every 3D convolution
 of the evolution U-Net and of the force models' U-Net and CNN, torch's own dispatch beside
-oneDNN's convolution called directly, and each whole network both ways, in one process.
+oneDNN's convolution called directly, and each whole network both ways; and the evolution
+ridge's linear map against its design rows times its weights; in one process.
 
     python benchmarks/inference_conv.py [--config config/config.yaml] [--threads 1] [--repeats 300]
 
@@ -10,7 +11,10 @@ does not depend on its weights. For each convolution it prints its shape, its im
 (input channels × kernel volume × output bins), µs per call on torch's path and on oneDNN's, and
 which :class:`dozerlab.learn.models.Conv3d` takes (``ONEDNN_COLUMNS``); then ms per forward of
 each network with every convolution on torch's path and with ``Conv3d``'s choice, and the
-largest difference of their outputs.
+largest difference of their outputs. For the ridge (its stencil stacked from 27 shifted views,
+the position's and the control's terms added by parts): ms per forward, per building the design
+rows the closed-form fit reads, and per those rows times the weights (the baseline: what forward
+computed before), with the largest difference of the two.
 Not a test: the seconds depend on the machine and its load.
 """
 
@@ -24,7 +28,7 @@ import torch
 
 from dozerlab.config import load_config
 from dozerlab.learn import models as M
-from dozerlab.learn.dynamics.models import DynamicsModel
+from dozerlab.learn.dynamics.models import DynamicsModel, RidgeStencil
 
 
 def _us(f: Callable[[], object], repeats: int) -> float:
@@ -113,6 +117,33 @@ def main() -> None:
                 f"  whole network: torch's path {plain:.2f} ms, Conv3d's choice {chosen_ms:.2f} "
                 f"ms ({plain / chosen_ms:.2f}x); outputs differ by {diff:.1e}"
             )
+        _ridge(grid, dh, dm, args.repeats)
+
+
+def _ridge(grid: tuple[int, ...], history: int, horizon: int, repeats: int) -> None:
+    """The ridge's forward against its design rows times its weights (random weights)."""
+    model = DynamicsModel("ridge", grid, history, horizon, 0.01, (0.05, 0.05, 0.05)).eval()
+    net = model.net
+    assert isinstance(net, RidgeStencil)
+    torch.nn.init.normal_(net.weight)
+    torch.nn.init.normal_(net.bias)
+    x = torch.randn(1, 4 * (history + horizon), *grid)
+    c = torch.randn(1, 3 * (history + horizon))
+
+    def by_rows() -> torch.Tensor:
+        rows = net.design(x, model.coords, c)
+        return torch.einsum("bxnd,xdo->bxno", rows, net.weight) + net.bias[None, :, None, :]
+
+    forward = _us(lambda: net(x, model.coords, c), repeats) / 1e3
+    design = _us(lambda: net.design(x, model.coords, c), repeats) / 1e3
+    baseline = _us(by_rows, repeats) / 1e3
+    got = net(x, model.coords, c).permute(0, 2, 3, 4, 1).flatten(1, 3)
+    want = by_rows().flatten(1, 2)
+    print(
+        f"\nevolution ridge: forward {forward:.2f} ms; design rows {design:.2f} ms, times the "
+        f"weights {baseline:.2f} ms ({baseline / forward:.2f}x); outputs differ by "
+        f"{float((got - want).abs().max()):.1e} (up to {float(want.abs().max()):.3g})"
+    )
 
 
 if __name__ == "__main__":
