@@ -2,6 +2,7 @@
 against opened by the job itself (as before), side by side.
 
     python benchmarks/job_overhead.py --workdir DIR [--configfile config/quick.yaml] [--repeat 3]
+        [--rules RULE ...] [--against OLD]
 
 DIR is a folder where that config's sweep has run (its ``results/`` are read, never written).
 The script takes one command line of each of the rules ``simulate``, ``validate``,
@@ -9,9 +10,10 @@ The script takes one command line of each of the rules ``simulate``, ``validate`
 points their outputs into a temporary folder and runs each ``--repeat`` times, alternately with a
 spool (``DOZERLAB_MLFLOW_SPOOL`` and a parent run id: the run is written to disk, no MLflow) and
 without (the job imports MLflow, opens a temporary SQLite store and logs there). It prints each
-job's wall time per mode and, for simulate, the overhead: the wall time less the stepping loop
-(the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures. With ``PYTHONPATH=OLD/src``
-and ``--modes live`` it measures an older checkout's jobs the same way.
+job's wall time per mode and, for simulate and reduce, the overhead: the wall time less the
+stepping loop (the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures. With
+``--against OLD`` each run is followed by the same run on the checkout OLD's code
+(``PYTHONPATH=OLD/src``; ``--modes live`` for one from before the spool), side by side.
 """
 
 from __future__ import annotations
@@ -105,6 +107,8 @@ def main() -> None:
         default=["spool", "live"],
         help="live alone for a checkout from before the spool (PYTHONPATH=OLD/src)",
     )
+    ap.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
+    ap.add_argument("--against", type=Path, help="an older checkout, run alternately")
     args = ap.parse_args()
     base = {k: v for k, v in os.environ.items() if not k.startswith(("DOZERLAB_", "MLFLOW_"))}
     with tempfile.TemporaryDirectory() as d:
@@ -115,17 +119,20 @@ def main() -> None:
             "live": {"MLFLOW_TRACKING_URI": f"sqlite:///{d}/mlflow.db"},
         }
         modes = {m: every[m] for m in args.modes}
-        for rule in RULES:
+        if args.against is not None:
+            old = {"PYTHONPATH": str(args.against.resolve() / "src")}
+            modes |= {f"{m} {args.against.name}": every[m] | old for m in args.modes}
+        for rule in args.rules:
             cmd, env = retarget(command(args.workdir, args.configfile, rule), tmp)
             walls: dict[str, list[float]] = {m: [] for m in modes}
             loops: dict[str, list[float]] = {m: [] for m in modes}
             for _ in range(args.repeat):
                 for mode, extra in modes.items():
                     walls[mode].append(run_once(cmd, {**base, **env, **extra}, args.workdir, tmp))
-                    if rule == "simulate":
+                    if rule in ("simulate", "reduce"):
                         loops[mode].append(stepping_loop_s(tmp))
             for mode in modes:
-                line = f"{rule:18s} {mode:5s} wall {statistics.median(walls[mode]):5.2f} s"
+                line = f"{rule:18s} {mode:14s} wall {statistics.median(walls[mode]):5.2f} s"
                 line += f" (of {', '.join(f'{w:.2f}' for w in walls[mode])})"
                 if loops[mode]:
                     over = [w - s for w, s in zip(walls[mode], loops[mode], strict=True)]

@@ -1,6 +1,7 @@
 """The process-level settings: the thread budget, atomic outputs that replace only what the same
 kind of command wrote, and jobs that stop with their workflow."""
 
+import gc
 import os
 import signal
 import socket
@@ -18,11 +19,24 @@ from dozerlab.runtime import (
     atomic_output,
     check_output,
     die_with_workflow,
+    freeze_heap,
     png_metadata,
     process_token,
     set_threads,
     thread_budget,
 )
+
+
+def test_freeze_heap_takes_the_live_objects_out_of_the_collectors_view():
+    alive = [[i] for i in range(1000)]  # tracked containers, as a job's loaded modules are
+    before = gc.get_freeze_count()
+    freeze_heap()
+    try:
+        assert gc.get_freeze_count() >= before + len(alive)
+        ids = {id(a) for a in alive}
+        assert not any(id(o) in ids for o in gc.get_objects())
+    finally:
+        gc.unfreeze()
 
 
 def test_set_threads_limits_numba_torch_and_blas_in_a_fresh_process():

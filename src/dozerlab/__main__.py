@@ -1,5 +1,5 @@
 """``python -m dozerlab`` runs the command-line interface."""
 
-from dozerlab.cli import main
+from dozerlab.cli import run
 
-raise SystemExit(main())
+raise SystemExit(run())

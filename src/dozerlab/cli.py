@@ -19,7 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError, die_with_workflow
+from dozerlab.runtime import DozerlabError, die_with_workflow, freeze_heap
 from dozerlab.tracking import STATUSES
 
 # The layers' command modules; each defines ``register(subparsers)`` and adds its own commands.
@@ -152,3 +152,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"dozerlab {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def run() -> int:
+    """The entry of ``python -m dozerlab`` and of the ``dozerlab`` script: :func:`main`, then
+    the heap frozen (:func:`dozerlab.runtime.freeze_heap`), its outputs closed by then, so that
+    the process exits without walking every object once more (0.4 s with torch loaded)."""
+    code = main()
+    freeze_heap()
+    return code

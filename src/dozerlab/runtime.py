@@ -9,6 +9,7 @@ costs a user their data.
 
 from __future__ import annotations
 
+import gc
 import glob
 import json
 import os
@@ -61,6 +62,18 @@ def set_threads(n: int) -> int:
     if torch is not None:
         torch.set_num_threads(n)
     return n
+
+
+def freeze_heap() -> None:
+    """Exempt every object alive now from Python's cyclic garbage collector (``gc.freeze``).
+
+    Call it once a job's imports, models and inputs are loaded, before its loop. Those objects
+    live until the process ends, yet every full collection walks them (torch alone leaves some
+    10⁵) and so does the interpreter's last one at exit: on a reduce job of the default sweep,
+    0.4 s of full collections in a 4 s loop and 0.5 s at exit. Objects made afterwards are
+    collected as before.
+    """
+    gc.freeze()
 
 
 def thread_budget() -> int:

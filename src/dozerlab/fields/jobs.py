@@ -16,7 +16,7 @@ from dozerlab import __version__, tracking
 from dozerlab.fields.run import drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FIELD_STORE, open_store
-from dozerlab.runtime import check_output
+from dozerlab.runtime import check_output, freeze_heap
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +72,7 @@ def simulate(
     }
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
     name = f"simulate {scenario} v={speed} d={depth}"
+    freeze_heap()  # as the reduce job does: the two loops are timed against each other
     with tracking.job_run(
         config,
         name,

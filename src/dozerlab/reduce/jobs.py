@@ -11,7 +11,14 @@ from typing import Any
 import numpy as np
 
 from dozerlab import sweep as P
-from dozerlab.runtime import FIGURE_DIR, DozerlabError, OutputKind, atomic_output, json_with
+from dozerlab.runtime import (
+    FIGURE_DIR,
+    DozerlabError,
+    OutputKind,
+    atomic_output,
+    freeze_heap,
+    json_with,
+)
 
 log = logging.getLogger(__name__)
 
@@ -49,18 +56,22 @@ def reduce_job(
     speed: float | None = None,
     depth: float | None = None,
 ) -> dict[str, float]:
-    """Load the models and run :func:`dozerlab.reduce.run.reduce_run` as a tracked MLflow run."""
+    """Load the models and run :func:`dozerlab.reduce.run.reduce_run` as a tracked MLflow run
+    (the heap frozen once the models are loaded, :func:`dozerlab.runtime.freeze_heap`)."""
     from dozerlab.fields.sampling import SamplingGrid
     from dozerlab.reduce.models import ForcePredictor, load_field_model
 
     grid = SamplingGrid.from_config(config)
+    field_model = load_field_model(dynamics, grid.bins, ndem_store)
+    forces = ForcePredictor(force_model)
+    freeze_heap()
     return _tracked_reduce(
         "reduce",
         bed,
         trajectory,
         config,
-        load_field_model(dynamics, grid.bins, ndem_store),
-        ForcePredictor(force_model),
+        field_model,
+        forces,
         out,
         state,
         scenario=scenario,
@@ -94,6 +105,7 @@ def reduce_points_job(
     forces = ForcePredictor(force_model)
     # replay's fields are each point's own NDEM run; a learned model is loaded once
     shared = None if str(dynamics) == REPLAY else load_field_model(dynamics, grid.bins)
+    freeze_heap()
     metrics = []
     for point in points:
         field_model = shared or load_field_model(REPLAY, grid.bins, P.field_path(results, point))
