@@ -32,8 +32,8 @@ rule reduce:
 
 
 # The runs the loop's force model learns from (reduced.force_fields: loop): one learned dynamics
-# model's loop on every training point, in one process (a one-point reduce job spends 2.6 s of its
-# 7 starting). These paths are this rule's, not reduce's, whichever job asks for them.
+# model's loop on every training point, in one process (a one-point reduce job spends 2.3 s of its
+# 7 outside its loop). These paths are this rule's, not reduce's, whichever job asks for them.
 ruleorder: reduce_training_points > reduce
 
 

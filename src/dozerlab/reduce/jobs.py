@@ -90,7 +90,7 @@ def reduce_points_job(
 ) -> list[dict[str, float]]:
     """Run several sweep points with one pair of models in one process (rule
     ``reduce_training_points``: a dynamics model's runs of the training points, which its loop's
-    force model learns from). A one-point reduce job spends 2.6 s starting (imports, models,
+    force model learns from). A one-point reduce job spends 2.3 s outside its loop (imports, models,
     compiled kernels) for 4–5 s of loop on the default sweep's points; here that is paid once.
 
     Inputs and outputs are the workflow's paths under ``results``: each point's bed, trajectory
