@@ -1,4 +1,5 @@
-"""Process-level settings shared by every command: the thread budget and safe atomic outputs.
+"""Process-level settings shared by every command: the thread budget, the heap frozen once a job
+is loaded (:func:`freeze_heap`), and safe atomic outputs.
 
 Every file or directory a command writes goes through :func:`atomic_output`, which builds it
 in a temporary sibling and renames it into place, and which replaces an existing path only when
