@@ -1,4 +1,4 @@
-"""The reduced stepping loop (SPEC §9): fields → learned models → particles moved and projected.
+"""The reduced stepping loop (docs/models.md): fields → learned models → particles moved and projected.
 
 One reduced step spans one store row (``sampling.every`` solver steps, h = every·dt). From row
 k-1 to row k, with the blade tip at p_k:
