@@ -1,6 +1,6 @@
 """How the package's modules import each other: no cycles (an import inside a function counts,
 so a cycle cannot hide there), and each layer imports only the layers to its left
-(ARCHITECTURE.md: ndem → scenarios → fields → learn → reduce → report, the shared modules
+(docs/architecture.md: ndem → scenarios → fields → learn → reduce → report, the shared modules
 below them all, the command line on top)."""
 
 from __future__ import annotations

@@ -346,7 +346,7 @@ def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
     assert dead.info.status == "RUNNING"
 
     locked = snakemake(quick, target)
-    assert locked.returncode != 0 and "cannot be locked" in locked.stderr  # README: --unlock
+    assert locked.returncode != 0 and "cannot be locked" in locked.stderr  # docs/safety.md
     assert snakemake(quick, "--unlock").returncode == 0
     done = snakemake(quick, target)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -419,7 +419,7 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
 
 
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):
-    """README says why rules have no conda/container directive; nothing else may be linted."""
+    """docs/architecture.md says why rules have no conda/container directive; nothing else lints."""
     done = snakemake(tmp_path, "--lint")
     lints = re.findall(r"^\s+\* (.+?):?$", done.stdout + done.stderr, flags=re.M)
     assert lints, (done.stdout + done.stderr)[-3000:]

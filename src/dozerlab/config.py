@@ -125,7 +125,7 @@ def check_cuts(config: Mapping[str, Any]) -> None:
     """Refuse cut depths that reach within a grain diameter of the ground anywhere along a path.
 
     The tip follows the bed height minus the depth wherever the bed is at or above the goal
-    height (SPEC §4), so its lowest point is (the higher of the bed's lowest level and the goal
+    height (docs/physics.md), so its lowest point is (the higher of the bed's lowest level and the goal
     height) minus the depth; a path clamped to the ground crushes grains against it and the
     run diverges.
     """

@@ -107,9 +107,8 @@ def dynamics_input(wildcards):
 # The schedule on few cores (snakemake's priorities, highest first): every model trains on all
 # the training runs, so those (and the trajectories they need) run before the held-out runs,
 # which only the validations and reduced runs need and which fill the cores beside the
-# training. The trainings start longest first (BENCHMARKS.md: the force U-Net ≈ 4.5 min, the
-# CNN and MLP ≈ 2, the evolution U-Net ≈ 1.5, the rest under 1), so the short ones fill the
-# cores at the end.
+# training. The trainings start longest first (the force U-Net, then the CNN and MLP, then the
+# evolution U-Net; the rest take under a minute), so the short ones fill the cores at the end.
 TRAINING_RUNS = {(p.scenario, P.fmt_number(p.speed), P.fmt_number(p.depth)) for p in P.by_role(POINTS, "train")}
 
 

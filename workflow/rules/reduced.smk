@@ -1,4 +1,4 @@
-# The live reduced simulation (SPEC §9) on the held-out points, measured against their NDEM runs.
+# The live reduced simulation (docs/models.md) on the held-out points, measured against their NDEM runs.
 
 
 rule reduce:

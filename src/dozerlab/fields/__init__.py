@@ -1,4 +1,4 @@
-"""Field sampling (SPEC §5), the zarr field store, the thesis's binary format, the simulation run,
+"""Field sampling (docs/data.md), the zarr field store, the thesis's binary format, the simulation run,
 field plots and VTK snapshots.
 
 Submodules: ``store`` (the zarr field store), ``reader`` (its fast reader), ``sampling`` (the

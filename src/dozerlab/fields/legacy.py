@@ -1,4 +1,4 @@
-"""The thesis's raw binary field format (appendix A, SPEC §6): import to and export from stores.
+"""The thesis's raw binary field format (docs/data.md): import to and export from stores.
 
 Layout, every word 4 bytes little-endian::
 

@@ -1,4 +1,4 @@
-"""Field sampling (SPEC §5): a grid of bins attached to the blade and particle–bin weights.
+"""Field sampling (docs/data.md): a grid of bins attached to the blade and particle–bin weights.
 
 The sampling volume is a box in the blade frame (origin at the tip, axes as the world's, the blade
 only translates): x ∈ [0, length] in front of the front face, y across the blade's width,

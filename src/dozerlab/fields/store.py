@@ -1,6 +1,6 @@
 """The field store: sampled fields of one run as a zarr v3 group that ``xarray.open_zarr`` opens.
 
-Schema (ARCHITECTURE.md, "The field store"):
+Schema (docs/data.md, "The field store"):
 
 ========================================  ==============================  =====================
 variable                                  dims                            unit
@@ -152,7 +152,7 @@ class FieldStoreWriter:
         path: the ``.zarr`` directory to create (an existing field store there is replaced;
             anything else is refused, :class:`~dozerlab.runtime.OutputExistsError`).
         x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
-        attrs: store attributes (ARCHITECTURE.md); must be JSON-serialisable.
+        attrs: store attributes (docs/data.md); must be JSON-serialisable.
         chunk_steps: time steps per shard (>= 1).
         codec: the fields' compressor (default :func:`default_codec`).
         inner_steps: time steps per inner chunk of a shard (must divide chunk_steps; default:

@@ -1,2 +1,2 @@
 """Force/torque models learned from field stores: datasets, models, training, validation and
-the MLflow pyfunc model (SPEC §7–8)."""
+the MLflow pyfunc model (docs/models.md)."""

@@ -35,7 +35,7 @@ def n_channels(history: int) -> int:
     return CHANNELS_PER_STEP * history + CHANNELS_PER_CHANGE * (history - 1)
 
 
-#: Parity of each target under the mirror y → −y (bed and blade are symmetric in y, SPEC §4):
+#: Parity of each target under the mirror y → −y (bed and blade are symmetric in y):
 #: force_y and the torques about the x and z axes (axial vectors) change sign.
 TARGET_PARITY = (1.0, -1.0, 1.0, -1.0, 1.0, -1.0)
 
@@ -171,7 +171,7 @@ def _same2(cin: int, cout: int) -> nn.Sequential:
 
 
 class ThesisCNN(nn.Module):
-    """The thesis's multi-scale 3D CNN (SPEC §7): conv 8@2³; three branches (none / max-pool 2
+    """The thesis's multi-scale 3D CNN (docs/models.md): conv 8@2³; three branches (none / max-pool 2
     / max-pool 4, each then conv 8@2³), upsampled to the grid and added; conv 8@1³; FC 384;
     FC 192; output. The conditioning joins at the first fully connected layer."""
 

@@ -5,5 +5,5 @@ torch, so that the CLI can offer the names without importing the models."""
 
 from __future__ import annotations
 
-#: Force/torque model names, in the report's order (SPEC §7).
+#: Force/torque model names, in the report's order (docs/models.md).
 MODEL_NAMES: tuple[str, ...] = ("linear", "mlp", "cnn", "unet")

@@ -74,7 +74,7 @@ def mirror_y(
 ) -> None:
     """Reflect the samples where ``mask`` holds across the blade's centre plane, in place.
 
-    Beds and blade are symmetric in y (SPEC §4), so the reflected sample is as valid as the
+    Beds and blade are symmetric in y, so the reflected sample is as valid as the
     original: bins are reversed along y, the y components of velocities and force change sign,
     and so do torque_x and torque_z (axial vector, torque about the tip). Shapes as
     :meth:`Batches.get` returns them.

@@ -281,7 +281,7 @@ def assemble(
             sig = 0.0
             rhs = 4.0 * upsilon / h * g + upsilon * un0
         else:
-            # Hertz-mapped row (SPEC §2) divided by its Jacobian factor (5/4) g^(1/4):
+            # Hertz-mapped row (docs/physics.md) divided by its Jacobian factor (5/4) g^(1/4):
             # an effective compliance 4 / (5 k_n √g) on the plain normal row and φ = (4/5) g.
             # The compliance is taken at the overlap the pair reaches by the end of the step
             # if it keeps approaching: evaluated at the current g, a fast pair meeting a

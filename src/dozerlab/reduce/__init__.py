@@ -1,1 +1,1 @@
-"""The live reduced simulation (SPEC §9): the learned models drive the grains; measured against NDEM."""
+"""The live reduced simulation (docs/models.md): the learned models drive the grains; measured against NDEM."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -65,19 +66,8 @@ def reduce_job(
     field_model = load_field_model(dynamics, grid.bins, ndem_store)
     forces = ForcePredictor(force_model)
     freeze_heap()
-    return _tracked_reduce(
-        "reduce",
-        bed,
-        trajectory,
-        config,
-        field_model,
-        forces,
-        out,
-        state,
-        scenario=scenario,
-        speed=speed,
-        depth=depth,
-    )
+    target = _Target(bed, trajectory, out, state, scenario, speed, depth)
+    return _tracked_reduce("reduce", target, config, field_model, forces)
 
 
 def reduce_points_job(
@@ -109,42 +99,43 @@ def reduce_points_job(
     metrics = []
     for point in points:
         field_model = shared or load_field_model(REPLAY, grid.bins, P.field_path(results, point))
+        target = _Target(
+            P.bed_path(results, point.scenario),
+            P.trajectory_path(results, point),
+            P.reduced_path(results, dynamics_model, point),
+            P.reduced_path(results, dynamics_model, point, "npz"),
+            point.scenario,
+            point.speed,
+            point.depth,
+        )
         metrics.append(
-            _tracked_reduce(
-                "reduce_training_points",
-                P.bed_path(results, point.scenario),
-                P.trajectory_path(results, point),
-                config,
-                field_model,
-                forces,
-                P.reduced_path(results, dynamics_model, point),
-                P.reduced_path(results, dynamics_model, point, "npz"),
-                scenario=point.scenario,
-                speed=point.speed,
-                depth=point.depth,
-            )
+            _tracked_reduce("reduce_training_points", target, config, field_model, forces)
         )
     return metrics
 
 
+@dataclass(frozen=True)
+class _Target:
+    """One reduced run's inputs (bed, trajectory), outputs (store, final state) and labels
+    (speed in m/s, depth in m; None when not given)."""
+
+    bed: str | Path
+    trajectory: str | Path
+    out: str | Path
+    state: str | Path
+    scenario: str | None
+    speed: float | None
+    depth: float | None
+
+
 def _tracked_reduce(
-    rule: str,
-    bed: str | Path,
-    trajectory: str | Path,
-    config: dict[str, Any],
-    field_model: Any,
-    forces: Any,
-    out: str | Path,
-    state: str | Path,
-    *,
-    scenario: str | None,
-    speed: float | None,
-    depth: float | None,
+    rule: str, target: _Target, config: dict[str, Any], field_model: Any, forces: Any
 ) -> dict[str, float]:
     """:func:`dozerlab.reduce.run.reduce_run` of loaded models as an MLflow run of ``rule``."""
     from dozerlab import tracking
     from dozerlab.reduce.run import reduce_run
 
+    scenario, speed, depth = target.scenario, target.speed, target.depth
     name = f"reduce {field_model.name} {scenario} v={speed} d={depth}"
     tags = {
         "scenario": scenario,
@@ -161,13 +152,13 @@ def _tracked_reduce(
         experiment=config["mlflow"]["experiment"],
     ) as run:
         metrics = reduce_run(
-            bed,
-            trajectory,
+            target.bed,
+            target.trajectory,
             config,
             field_model,
             forces,
-            out,
-            state,
+            target.out,
+            target.state,
             scenario=scenario,
             speed=speed,
             depth=depth,

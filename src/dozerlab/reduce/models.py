@@ -51,8 +51,8 @@ class FieldModel(Protocol):
 class PyfuncFieldModel:
     """A field-evolution model of an MLflow pyfunc directory, read directly (``FORMAT.load``):
     the loop calls the network itself, without MLflow's per-call input handling (it cost as
-    much as the network on the quick sweep's grid, BENCHMARKS.md "Reduced simulation") or the
-    1–2 s of importing MLflow."""
+    much as the network on the quick sweep's grid; BENCHMARKS.md, "Measurements behind the
+    defaults") or the 1–2 s of importing MLflow."""
 
     def __init__(self, path: str | Path, grid: tuple[int, int, int]) -> None:
         path = Path(path)

@@ -1,4 +1,4 @@
-"""Position projection (PBD, SPEC §9): push overlapping spheres apart and out of the bodies.
+"""Position projection (position-based dynamics): push overlapping spheres apart and out of the bodies.
 
 A contact is a sphere pair (i, j) or a sphere and a static/kinematic body (plane or box). Each
 iteration moves the spheres so that every overlapping contact is resolved exactly along its
@@ -455,7 +455,7 @@ def _round(
     Returns the largest overlap over the listed pairs and the round's stats.
     """
     body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
-    # sorted by cell: the sweeps walk memory forward (spatial order; SPEC §2)
+    # sorted by cell: the sweeps walk memory forward (spatial order keeps the sweeps in cache)
     x0 = np.asarray(x, dtype=np.float64)
     lo, cell, dims = broadphase.grid_layout(x0, float(r0.max()) + m, max(8 * x0.shape[0], 4096))
     perm, _ = broadphase.counting_sort(

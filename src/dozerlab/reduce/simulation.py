@@ -1,4 +1,4 @@
-"""The reduced stepping loop (SPEC §9): fields → learned models → particles moved and projected.
+"""The reduced stepping loop (docs/models.md): fields → learned models → particles moved and projected.
 
 One reduced step spans one store row (``sampling.every`` solver steps, h = every·dt). From row
 k-1 to row k, with the blade tip at p_k:
@@ -33,7 +33,7 @@ k-1 to row k, with the blade tip at p_k:
    velocity for the grains it moved, the projected velocity for the rest. Fed the projection's
    push-outs as flow (grains lifted out of overlap read as upwelling), the evolution U-Net
    answered with ever more upward and forward motion: piles 50 % too tall, the bed below the cut
-   dragged along, 4–30 % height accuracy on the default sweep's held-out points against 33–51 %
+   dragged along, 3–30 % height accuracy on the default sweep's held-out points against 33–51 %
    with the flow (BENCHMARKS.md).
 
 The first H rows (the models' history) come from a short NDEM warm-up of the same bed along the

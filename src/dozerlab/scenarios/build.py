@@ -1,4 +1,4 @@
-"""Building a scenario's bed the thesis's way (SPEC §3), and the world that holds it.
+"""Building a scenario's bed the thesis's way (docs/physics.md), and the world that holds it.
 
 A thin emitter strip spanning the domain's width makes one pass along x over the ground,
 creating layers of particles of radius r·(1 ± radius_dispersion) (uniform), each at a random

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_bed)
 
-    p = sub.add_parser("trajectory", help="plan a blade path over a bed (SPEC §4)")
+    p = sub.add_parser("trajectory", help="plan a blade path over a bed")
     p.add_argument("--bed", required=True, help="bed file written by 'dozerlab bed'")
     add_point(
         p,

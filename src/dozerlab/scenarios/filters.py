@@ -1,4 +1,4 @@
-"""The thesis's height-field smoothing filters (SPEC §4 step 3).
+"""The thesis's height-field smoothing filters (docs/physics.md, path step 3).
 
 Two moving-average filters on a 1-D height profile sampled at equally spaced points:
 

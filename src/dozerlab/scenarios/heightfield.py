@@ -1,4 +1,4 @@
-"""The bed's height field (SPEC §4 step 1): highest particle surface per ground subdivision.
+"""The bed's height field (docs/physics.md, path step 1): highest particle surface per ground subdivision.
 
 Collapsing it along y (thesis eq. 3.4) is ``h.mean(axis=1)``.
 

@@ -1,4 +1,4 @@
-"""The blade trajectory and its per-step velocities (SPEC §4, thesis algorithm 3).
+"""The blade trajectory and its per-step velocities (the thesis's algorithm 3; docs/physics.md).
 
 ``plan_trajectory`` turns a settled bed, a blade speed s and a cut depth d into tip positions and
 the velocity to prescribe in each step:

@@ -1,6 +1,6 @@
 """An evolution model as an MLflow pyfunc model directory, and loading it back.
 
-Contract (README "Field-evolution models")::
+Contract (docs/models.md, "Field-evolution models")::
 
     m = mlflow.pyfunc.load_model("results/dynamics/ridge")
     H, m_ = m.metadata.metadata["history"], m.metadata.metadata["horizon"]

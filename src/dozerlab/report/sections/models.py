@@ -19,7 +19,7 @@ ORDER = 50
 
 #: The compared components (the blade's draft force, lift and pitch torque) and their units.
 COMPARED = {"force_x": "kN", "force_z": "kN", "torque_y": "kN·m"}
-#: SPEC §8: the thesis's CNN, about 10 % force error, measured on its training data only.
+#: The thesis's CNN, about 10 % force error, measured on its training data only.
 THESIS_ERROR = 0.10
 
 
