@@ -184,6 +184,10 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             p.relaxation,
         )
     state.warm.store(state.id, ci, cj, lam)
+    if p.active_zone:
+        _wake_loaded(
+            state.awake, state.rest, ci, cj, cd, lam, 1.0 / state.m, h * p.gravity, p.rest_speed
+        )
     bodies.force, bodies.torque = contacts.body_loads(
         ci, cj, cd, lam, state.x, bodies.center, nb, h
     )
@@ -271,6 +275,41 @@ def _wake(
             awake[bi[t]] = True
             rest[bi[t]] = 0.0
     return zone
+
+
+@njit(cache=True)
+def _wake_loaded(awake, rest, ci, cj, cd, lam, invm, hg, speed):
+    """Wake, in place, the sleeping spheres that this step's impulses no longer hold still.
+
+    A sleeping sphere's contacts held it at rest when it fell asleep. Summed with gravity's
+    impulse ``hg`` (3,) m/s, the impulses ``lam`` (Nc, 7) of all its contacts now — the frozen
+    ones and those with awake spheres, solved against it as a fixed obstacle — would change its
+    velocity by Δv (``invm`` (N,) 1/kg, its own); beyond ``speed`` (m/s) it wakes, to move
+    from the next step on. So a load passed on through resting grains (a force chain ahead of
+    the pile) wakes them though nothing near them moves yet.
+    """
+    n = awake.shape[0]
+    dv = np.zeros((n, 3))
+    for k in range(ci.shape[0]):
+        i, j = ci[k], cj[k]
+        si = not awake[i]
+        sj = j >= 0 and not awake[j]
+        if not (si or sj):
+            continue
+        for a in range(3):
+            f = lam[k, 0] * cd[k, contacts.N0 + a] + lam[k, 1 + a]
+            if si:
+                dv[i, a] += invm[i] * f
+            if sj:
+                dv[j, a] -= invm[j] * f
+    s2 = speed * speed
+    for i in range(n):
+        if awake[i]:
+            continue
+        d0, d1, d2 = dv[i, 0] + hg[0], dv[i, 1] + hg[1], dv[i, 2] + hg[2]
+        if d0 * d0 + d1 * d1 + d2 * d2 > s2:
+            awake[i] = True
+            rest[i] = 0.0
 
 
 @njit(cache=True)
