@@ -27,14 +27,14 @@ def add_command(
     """A command's parser: ``summary`` (one line, what it does) opens its ``--help`` and, when
     ``listed``, is its line in ``dozerlab --help``; ``example`` (a command line on the default
     results layout, lines joined by ``\\``) closes its ``--help`` as written."""
-    listing = {"help": summary} if listed else {}  # no help=: the command is left out of the list
-    return sub.add_parser(
-        name,
-        description=summary,
-        epilog=f"example:\n  {example}",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        **listing,
-    )
+    layout: dict[str, Any] = {
+        "description": summary,
+        "epilog": f"example:\n  {example}",
+        "formatter_class": argparse.RawDescriptionHelpFormatter,
+    }
+    if listed:  # without help=, the command is left out of `dozerlab --help`
+        layout["help"] = summary
+    return sub.add_parser(name, **layout)
 
 
 def add_config(p: argparse.ArgumentParser, help: str = CONFIG_HELP) -> None:
