@@ -3,8 +3,11 @@ layer (``config``, ``mlflow-start``, ``mlflow-end``), and errors a user can fix 
 traceback."""
 
 import json
+import os
 import re
 import shlex
+import subprocess
+import sys
 from string import Formatter
 
 import pytest
@@ -73,6 +76,23 @@ def test_every_command_help_says_what_it_does_and_shows_a_real_example(command, 
     assert build_parser().parse_args(argv[3:]).command == command
     paths = [a for a in argv if a.startswith("results/")]
     assert all(RESULT_PATHS.fullmatch(a) for a in paths), paths
+
+
+def test_python_m_dozerlab_lists_each_command_with_its_one_line_summary():
+    """The entry a user types, in a fresh interpreter: ``python -m dozerlab --help``."""
+    env = {**os.environ, "COLUMNS": "200"}  # one line per command, however narrow the terminal
+    listed = subprocess.run(
+        [sys.executable, "-m", "dozerlab", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    ).stdout
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for choice in sub._choices_actions:  # the listed commands, with their help
+        line = rf"^ +{choice.dest}\s+{re.escape(choice.help)}$"
+        assert re.search(line, listed, re.M), choice.dest
+    assert len(sub._choices_actions) == len(COMMANDS) - 3  # the Snakefile's hooks are not listed
 
 
 def test_config_prints_the_complete_document(tmp_path, capsys):
