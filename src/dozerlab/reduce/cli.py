@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_run_inputs(p)
     _add_models(p)
-    p.add_argument("--ndem", default=None, help="the point's NDEM field store (for replay)")
+    p.add_argument("--ndem", default=None, help="the point's NDEM store (replay plays it back)")
     add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
     p.add_argument("--state", required=True, help="final particle state to write (.npz)")
@@ -71,7 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "      --results results --out results/reduced/ridge.json \\\n"
         "      --plots results/reduced/ridge/compare",
     )
-    p.add_argument("--dynamics-model", required=True, help="dynamics model name (or replay)")
+    p.add_argument("--dynamics-model", required=True, help="model name, or replay (NDEM's fields)")
     add_config(p)
     p.add_argument("--results", default="results", help="the workflow's results folder")
     p.add_argument("--out", required=True, help="JSON to write (results/reduced/NAME.json)")
