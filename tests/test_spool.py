@@ -123,6 +123,7 @@ def test_a_damaged_record_is_refused_by_name_and_kept_the_others_logged(workflow
     assert folder.is_dir() and list(children(client, parent)) == ["bed step"]
 
 
+@pytest.mark.slow  # a follower process and several jobs
 def test_the_follower_logs_runs_as_jobs_end_and_stops_on_sigterm(workflow, tmp_path):
     client, parent, _root = workflow
     follower = subprocess.Popen(

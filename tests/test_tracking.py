@@ -27,6 +27,7 @@ with tracked_run("job" + sys.argv[2], rule="test"):
 """
 
 
+@pytest.mark.slow  # four job processes race to create a store's tables
 def test_jobs_started_together_on_a_fresh_store_all_record(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "DOZERLAB_"))}
     start = time.time() + 5.0  # past every interpreter's start-up, so they reach the store at once
@@ -85,6 +86,7 @@ def test_a_job_gives_up_on_an_absent_server_after_the_bounded_wait(tmp_path, mon
     assert not (tmp_path / "mlflow.db").exists()  # no fallback to a local store
 
 
+@pytest.mark.slow  # starts a real MLflow server
 def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_path, monkeypatch):
     """A real tracking server on 127.0.0.1, started seconds after the job: the job waits for it,
     and its run lands FINISHED in the server's store."""

@@ -19,6 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from dozerlab import __version__
+from dozerlab.cliargs import add_command
 from dozerlab.runtime import DozerlabError, die_with_workflow, freeze_heap
 from dozerlab.tracking import STATUSES
 
@@ -35,15 +36,24 @@ COMMAND_MODULES = (
 
 def register(sub: argparse._SubParsersAction) -> None:
     """The commands of no layer: ``config``, ``mlflow-start``, ``mlflow-end``, ``mlflow-ingest``."""
-    p = sub.add_parser("config", help="validate a config file and print it complete")
+    p = add_command(
+        sub,
+        "config",
+        "validate a config file and print it complete",
+        "python -m dozerlab config config/quick.yaml",
+    )
     p.add_argument(
         "config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)"
     )
     p.set_defaults(func=_config)
 
     # Internal (the Snakefile's hooks call them): no help= keeps them out of `dozerlab --help`.
-    p = sub.add_parser(
-        "mlflow-start", description="start the parent MLflow run of a workflow; print its id"
+    p = add_command(
+        sub,
+        "mlflow-start",
+        "start the parent MLflow run of a workflow; print its id",
+        "python -m dozerlab mlflow-start --config config/quick.yaml --name workflow",
+        listed=False,
     )
     p.add_argument(
         "--experiment",
@@ -59,8 +69,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_mlflow_start)
 
-    p = sub.add_parser(
-        "mlflow-end", description="end a parent MLflow run, logging the artifacts it produced"
+    p = add_command(
+        sub,
+        "mlflow-end",
+        "end a parent MLflow run, logging the artifacts it produced",
+        "python -m dozerlab mlflow-end RUN_ID --status FINISHED --artifact results/report/index.html",
+        listed=False,
     )
     p.add_argument("run_id", help="the id mlflow-start printed")
     p.add_argument("--status", default="FINISHED", choices=STATUSES)
@@ -73,9 +87,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_mlflow_end)
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "mlflow-ingest",
-        description="log a workflow's spooled job runs (DOZERLAB_MLFLOW_SPOOL) to MLflow",
+        "log a workflow's spooled job runs (DOZERLAB_MLFLOW_SPOOL) to MLflow",
+        "python -m dozerlab mlflow-ingest RUN_ID --follow",
+        listed=False,
     )
     p.add_argument("run_id", help="the workflow's parent run id")
     p.add_argument(

@@ -16,6 +16,27 @@ from typing import Any
 CONFIG_HELP = "YAML file or inline JSON (default: all defaults)"
 
 
+def add_command(
+    sub: argparse._SubParsersAction,
+    name: str,
+    summary: str,
+    example: str,
+    *,
+    listed: bool = True,
+) -> argparse.ArgumentParser:
+    """A command's parser: ``summary`` (one line, what it does) opens its ``--help`` and, when
+    ``listed``, is its line in ``dozerlab --help``; ``example`` (a command line on the default
+    results layout, lines joined by ``\\``) closes its ``--help`` as written."""
+    layout: dict[str, Any] = {
+        "description": summary,
+        "epilog": f"example:\n  {example}",
+        "formatter_class": argparse.RawDescriptionHelpFormatter,
+    }
+    if listed:  # without help=, the command is left out of `dozerlab --help`
+        layout["help"] = summary
+    return sub.add_parser(name, **layout)
+
+
 def add_config(p: argparse.ArgumentParser, help: str = CONFIG_HELP) -> None:
     """``--config SOURCE``: the config (a YAML file or inline JSON; none: all defaults)."""
     p.add_argument("--config", default=None, help=help)

@@ -19,6 +19,7 @@ def run_inputs(tmp_path_factory):
     return tmp, *write_tiny_run(tmp, "path.csv")
 
 
+@pytest.mark.slow  # a simulation logged to MLflow; test_run covers simulate fast
 def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mlflow_store):
     tmp, config, bed, _ = run_inputs
     out = tmp / "f.zarr"

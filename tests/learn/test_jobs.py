@@ -20,6 +20,7 @@ def _inputs(store):
     }
 
 
+@pytest.mark.slow  # logs and reloads MLflow models
 def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_files, config):
     config["learn"]["epochs"] = 2
     config["mlflow"]["enabled"] = True
@@ -125,6 +126,7 @@ def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     assert "trained on" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # two trainings
 def test_a_force_model_trained_on_loop_fields_says_so(tracking, store_files, config, capsys):
     """``--loop-fields``: the reduced loop's runs of the training points give the fields, NDEM's
     runs the force; the model, its metadata and its MLflow run say which fields it learnt."""

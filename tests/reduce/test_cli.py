@@ -6,6 +6,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 
 from dozerlab.cli import main
 from dozerlab.fields.store import open_store
@@ -23,6 +24,7 @@ def _reduce_argv(tmp, dynamics: str, out: str) -> list[str]:
     ]
 
 
+@pytest.mark.slow  # a reduced run and its NDEM run; reduce-points covers the command fast
 def test_reduce_command_writes_an_aligned_store_and_a_bed_file(ndem_run):
     tmp, _ = ndem_run
     assert main([*_reduce_argv(tmp, "replay", "cli"), "--depth", "0.06"]) == 0

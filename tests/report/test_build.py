@@ -2,6 +2,8 @@
 
 import re
 
+import pytest
+
 from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.report.build import build_report
@@ -68,6 +70,7 @@ def test_smoke_test_config_says_so(tmp_path):
     assert '<div class="note">Smoke test' in text
 
 
+@pytest.mark.slow  # a pool of processes
 def test_figures_drawn_by_several_processes_are_those_drawn_by_one(tmp_path):
     results = tmp_path / "results"
     for p in P.sweep_points(CFG)[:3]:

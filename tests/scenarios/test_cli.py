@@ -102,6 +102,7 @@ def test_bad_arguments_exit_2_with_a_clear_message(step_bed, tmp_path, capsys, a
     assert not (tmp_path / "t.csv").exists()
 
 
+@pytest.mark.slow  # settles a bed; test_bed_command_writes_bed_and_plot is the fast one
 def test_bed_command_logs_an_mlflow_run(tmp_path, monkeypatch):
     import mlflow
 
