@@ -15,6 +15,7 @@ import pytest
 
 from dozerlab.cli import main
 from dozerlab.fields.legacy import export_legacy
+from dozerlab.runtime import DozerlabError
 from tests.helpers import TINY_RUN, write, write_tiny_run
 
 
@@ -503,3 +504,28 @@ def test_simulate_leaves_no_store_when_its_state_cannot_be_written(tiny_run, tmp
         "(--state)",
     )
     assert [p.name for p in tmp_path.iterdir()] == ["states"]
+
+
+def test_simulate_that_fails_after_its_store_leaves_none_of_its_outputs(
+    tiny_run, tmp_path, capsys, monkeypatch
+):
+    """The store, state and snapshots were in place when the plots failed: all are taken back,
+    and the earlier run's store and state put back."""
+    from dozerlab.fields import plots
+
+    out, state, vtk = tmp_path / "f.zarr", tmp_path / "s.npz", tmp_path / "vtk"
+    argv = simulate_argv(tiny_run, out, "--state", str(state), "--vtk-dir", str(vtk))
+    assert main(argv) == 0
+    earlier = snapshot(tmp_path)
+
+    def fail(*args, **kwargs):
+        raise DozerlabError("drawing failed")
+
+    monkeypatch.setattr(plots, "plot_run", fail)
+    refused([*argv, "--plots", str(tmp_path / "plots")], capsys, "drawing failed")
+    assert snapshot(tmp_path) == earlier
+    shutil.rmtree(out)
+    shutil.rmtree(vtk)
+    state.unlink()
+    refused([*argv, "--plots", str(tmp_path / "plots")], capsys, "drawing failed")
+    assert list(tmp_path.iterdir()) == []
