@@ -533,6 +533,9 @@ def json_with(keys: Collection[str], without: Collection[str] = ()) -> Callable[
 
 #: The file that marks a folder as one of ours (:func:`marked_folder`).
 FOLDER_MARK = ".dozerlab-output.json"
+#: What Snakemake adds to a ``directory()`` output when its job ends: not the user's, so a
+#: folder of ours that the workflow wrote stays ours.
+SNAKEMAKE_TIMESTAMP = ".snakemake_timestamp"
 
 
 def _entries(root: Path) -> list[str]:
@@ -549,16 +552,16 @@ def marked_folder(what: str, name: str) -> OutputKind:
 
     Its mark, :data:`FOLDER_MARK` inside it, names the output (``name``) and lists every entry
     the command wrote. An existing folder is recognised only if its mark names ``name`` and it
-    holds nothing the mark does not list: a user's folder, one of another command, or one of
-    ours that a user has since added a file to is not replaced. An empty folder is not ours
-    either.
+    holds nothing the mark does not list (but Snakemake's :data:`SNAKEMAKE_TIMESTAMP`): a user's
+    folder, one of another command, or one of ours that a user has since added a file to is not
+    replaced. An empty folder is not ours either.
     """
 
     def recognise(path: Path) -> bool:
         if path.is_symlink() or not path.is_dir():
             return False
         doc = json.loads((path / FOLDER_MARK).read_text())
-        listed = set(doc["entries"]) | {FOLDER_MARK}
+        listed = set(doc["entries"]) | {FOLDER_MARK, SNAKEMAKE_TIMESTAMP}
         return doc.get("output") == name and set(_entries(path)) <= listed
 
     def mark(tmp: Path) -> None:
