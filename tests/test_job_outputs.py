@@ -453,6 +453,12 @@ def test_a_name_whose_temporary_would_be_too_long(store, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ["in"]
 
 
+def test_a_path_too_long(store, tmp_path, capsys):
+    out = tmp_path.joinpath(*["d" * 200] * 21, "out.bin")  # > 4096 bytes, each name fits
+    refused(["export-legacy", str(out.parent), str(out)], capsys, "(OUT)", "bytes a path may have")
+    assert [p.name for p in tmp_path.iterdir()] == ["in"]
+
+
 def test_outputs_that_would_overwrite_each_other(tiny_run, tmp_path, capsys):
     out = tmp_path / "same"
     refused(

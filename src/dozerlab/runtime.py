@@ -326,15 +326,19 @@ def check_output_path(path: str | Path, argument: str = "") -> list[Path]:
         raise refuse("it names no file or folder")
     missing: list[Path] = []
     folder = p.parent
-    while True:
-        if folder.is_symlink() and not folder.exists():
-            raise refuse(f"{folder} is a broken link, in the way of its folder")
-        if folder.exists():
-            break
-        if folder == folder.parent:
-            raise refuse(f"no part of {folder} exists")
-        missing.append(folder)
-        folder = folder.parent
+    try:
+        while not folder.exists():
+            if folder.is_symlink():
+                raise refuse(f"{folder} is a broken link, in the way of its folder")
+            if folder == folder.parent:
+                raise refuse(f"no part of {folder} exists")
+            missing.append(folder)
+            folder = folder.parent
+    except OSError as exc:  # the path is too long to look at
+        if exc.errno != errno.ENAMETOOLONG:
+            raise
+        size = len(os.fsencode(str(p)))
+        raise refuse(f"the path is {size} bytes, more than the bytes a path may have") from None
     if not folder.is_dir():
         raise refuse(f"{folder} is a file, not a folder: it is in the way of the output's folder")
     if not os.access(
