@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.runtime import ConfigError
+from dozerlab.runtime import ConfigError, check_name
 
 ROLES = ("train", "interpolation", "extrapolation")
 #: What a speed or depth looks like in a path.
@@ -174,7 +174,13 @@ def pattern(kind: str, results: str | Path = RESULTS) -> str:
 
 
 def _path(kind: str, results: str | Path, point: SweepPoint | None = None, **names: str) -> Path:
+    """``results``/``PATHS[kind]`` filled with the point's numbers and ``names``, each of which
+    (a scenario, a model) must be a plain name (:func:`~dozerlab.runtime.check_name`), so
+    that no name leads outside ``results``."""
+    for wildcard, value in names.items():
+        check_name(value, wildcard)
     if point is not None:
+        check_name(point.scenario, "scenario")
         names |= {
             "scenario": point.scenario,
             "speed": fmt_number(point.speed),

@@ -10,6 +10,7 @@ import xarray as xr
 
 from dozerlab.cli import main
 from dozerlab.fields.store import write_store
+from dozerlab.runtime import FOLDER_MARK
 from tests.helpers import TINY_RUN
 
 
@@ -18,7 +19,8 @@ def test_plot_fields_defaults_to_four_spread_slices_and_no_animation_on_request(
 ):
     store = write_store(tmp_path / "f.zarr", **store_arrays)
     assert main(["plot-fields", str(store), "--out", str(tmp_path / "p"), "--no-animation"]) == 0
-    names = sorted(p.name for p in (tmp_path / "p").iterdir())
+    names = sorted(p.name for p in (tmp_path / "p").iterdir() if p.name != FOLDER_MARK)
+    assert (tmp_path / "p" / FOLDER_MARK).is_file()  # the folder is marked as plot-fields'
     assert names == [
         "force.png",
         "slice_000000.png",

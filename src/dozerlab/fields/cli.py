@@ -90,7 +90,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "      speed~1.0_depth~0.04.bin",
     )
     p.add_argument("store", help="field store (.zarr)")
-    p.add_argument("out", help="binary file to write")
+    p.add_argument("out", help="binary file to write (a new one unless --overwrite)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing legacy binary file at OUT: the format has no room for a mark "
+        "of ours, so without this flag any existing file is refused",
+    )
     p.set_defaults(func=_export)
 
 
@@ -104,16 +110,19 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from dozerlab.fields.plots import plot_run
+    from dozerlab.fields.plots import FIELD_PLOTS, plot_run
     from dozerlab.fields.store import open_store
+    from dozerlab.runtime import job_outputs
 
-    for path in plot_run(
-        open_store(args.store),
-        args.out,
-        steps=args.steps,
-        animation=not args.no_animation,
-        frames=args.frames,
-    ):
+    with job_outputs(("--out", args.out, FIELD_PLOTS)):
+        paths = plot_run(
+            open_store(args.store),
+            args.out,
+            steps=args.steps,
+            animation=not args.no_animation,
+            frames=args.frames,
+        )
+    for path in paths:
         print(path)
     return 0
 
@@ -128,5 +137,5 @@ def _import(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from dozerlab.fields.legacy import export_legacy
 
-    print(export_legacy(args.store, args.out))
+    print(export_legacy(args.store, args.out, overwrite=args.overwrite))
     return 0

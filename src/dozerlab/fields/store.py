@@ -90,17 +90,42 @@ ATTRS = (
 )
 
 
-def is_field_store(path: Path) -> bool:
-    """A zarr group whose attributes carry ``dozerlab_version`` (every store this package writes)."""
-    meta = path / "zarr.json"
-    if not meta.is_file():
-        return False
-    doc = json.loads(meta.read_text())
-    return doc.get("node_type") == "group" and "dozerlab_version" in doc.get("attributes", {})
+#: The store attribute naming the command that wrote the store (an :class:`OutputKind`'s name).
+OUTPUT_ATTR = "dozerlab_output"
 
 
-#: What ``simulate`` and ``import-legacy`` write; an existing store of ours may be replaced.
-FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
+def store_output(attrs: dict[str, Any]) -> str:
+    """The command that wrote a store of these attributes: its :data:`OUTPUT_ATTR`, or for a
+    store written before that attribute, the one its attributes show (a reduced run names its
+    dynamics model, an import its legacy source)."""
+    if OUTPUT_ATTR in attrs:
+        return str(attrs[OUTPUT_ATTR])
+    if "dynamics_model" in attrs:
+        return "reduce"
+    return "import-legacy" if str(attrs.get("source", "")).startswith("legacy") else "simulate"
+
+
+def field_store_kind(what: str, name: str) -> OutputKind:
+    """The kind of a field store that command ``name`` writes: a zarr group of ours
+    (``dozerlab_version`` among its attributes) that ``name`` wrote (:func:`store_output`)."""
+
+    def recognise(path: Path) -> bool:
+        meta = path / "zarr.json"
+        if path.is_symlink() or not meta.is_file():
+            return False
+        doc = json.loads(meta.read_text())
+        attrs = doc.get("attributes", {})
+        return (
+            doc.get("node_type") == "group"
+            and "dozerlab_version" in attrs
+            and store_output(attrs) == name
+        )
+
+    return OutputKind(what, recognise, name)
+
+
+#: What ``simulate`` writes; only an earlier store of ``simulate`` may be replaced.
+FIELD_STORE = field_store_kind("a dozerlab field store written by simulate", "simulate")
 #: zarr skips chunks that hold only the fill value; written all, a missing one is damage, not a
 #: run of zeros (``reader.missing_pieces``, :func:`open_store`).
 _ALL_CHUNKS: ArrayConfigParams = {"write_empty_chunks": True}
@@ -153,6 +178,8 @@ class FieldStoreWriter:
             anything else is refused, :class:`~dozerlab.runtime.OutputExistsError`).
         x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
         attrs: store attributes (docs/data.md); must be JSON-serialisable.
+        kind: the command's kind of store (default: ``simulate``'s, :data:`FIELD_STORE`); its
+            name is recorded as the attribute :data:`OUTPUT_ATTR`.
         chunk_steps: time steps per shard (>= 1).
         codec: the fields' compressor (default :func:`default_codec`).
         inner_steps: time steps per inner chunk of a shard (must divide chunk_steps; default:
@@ -167,6 +194,7 @@ class FieldStoreWriter:
         y: np.ndarray,
         z: np.ndarray,
         attrs: Mapping[str, Any],
+        kind: OutputKind = FIELD_STORE,
         chunk_steps: int = DEFAULT_CHUNK_STEPS,
         codec: Any = None,
         inner_steps: int | None = None,
@@ -191,6 +219,8 @@ class FieldStoreWriter:
             self.attrs = json.loads(json.dumps(dict(attrs), allow_nan=False))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"store attrs must be JSON-serialisable without NaN: {exc}") from exc
+        self.kind = kind
+        self.attrs[OUTPUT_ATTR] = kind.name
         self.path = Path(path)
         self.chunk_steps = chunk_steps
         self.inner_steps = inner_steps
@@ -207,7 +237,7 @@ class FieldStoreWriter:
 
     def __enter__(self) -> FieldStoreWriter:
         self._stack = ExitStack()
-        tmp = self._stack.enter_context(atomic_output(self.path, FIELD_STORE))
+        tmp = self._stack.enter_context(atomic_output(self.path, self.kind))
         try:
             self._create(tmp)
         except BaseException:
@@ -356,6 +386,7 @@ def write_store(
     path: str | Path,
     *,
     attrs: Mapping[str, Any],
+    kind: OutputKind = FIELD_STORE,
     chunk_steps: int = DEFAULT_CHUNK_STEPS,
     codec: Any = None,
     inner_steps: int | None = None,
@@ -381,6 +412,7 @@ def write_store(
             raise ValueError(f"{name} has {len(arrays[name])} steps but time has {time.size}")
     coords: dict[str, Any] = {k: arrays[k] for k in ("x", "y", "z")}
     options: dict[str, Any] = {
+        "kind": kind,
         "chunk_steps": chunk_steps,
         "codec": codec,
         "inner_steps": inner_steps,

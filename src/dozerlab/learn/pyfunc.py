@@ -37,18 +37,26 @@ if TYPE_CHECKING:
 INPUT_NAMES = ("velocity", "density", "blade_velocity")
 
 
-def is_model_dir(path: Path) -> bool:
-    """An MLflow model directory holding this package's ``artifacts/meta.json`` and weights."""
-    art = path / "artifacts"
-    return (
-        (path / "MLmodel").is_file()
-        and (art / "weights.pt").is_file()
-        and "kind" in json.loads((art / "meta.json").read_text())
-    )
+def model_dir_kind(what: str, name: str, evolution: bool) -> OutputKind:
+    """The kind of a model directory that command ``name`` writes: an MLflow model directory
+    holding this package's ``artifacts/meta.json`` and weights, of an evolution model (its
+    metadata has a ``horizon``) or not, as ``evolution`` says, so that ``train`` never replaces
+    an evolution model nor ``train-dynamics`` a force model."""
+
+    def recognise(path: Path) -> bool:
+        art = path / "artifacts"
+        if path.is_symlink() or not (path / "MLmodel").is_file():
+            return False
+        meta = json.loads((art / "meta.json").read_text())
+        return (
+            (art / "weights.pt").is_file() and "kind" in meta and ("horizon" in meta) == evolution
+        )
+
+    return OutputKind(what, recognise, name)
 
 
-#: What ``dozerlab train`` writes; an earlier model of ours at ``--out`` may be replaced.
-MODEL_DIR = OutputKind("a dozerlab model directory (MLmodel + artifacts/meta.json)", is_model_dir)
+#: What ``dozerlab train`` writes; an earlier force model of ours at ``--out`` may be replaced.
+MODEL_DIR = model_dir_kind("a dozerlab force model directory (written by train)", "train", False)
 
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:

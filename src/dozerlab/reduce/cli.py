@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import PurePosixPath
 
 from dozerlab.cliargs import (
     add_command,
@@ -117,7 +118,13 @@ def _reduce(args: argparse.Namespace) -> int:
 
 def _reduce_points(args: argparse.Namespace) -> int:
     from dozerlab import sweep as P
+    from dozerlab.runtime import check_name
 
+    for text in args.points:
+        parts = PurePosixPath(text).parts
+        if len(parts) != 2:
+            raise ValueError(f"--points {text!r} is not SCENARIO/speed~V_depth~D")
+        check_name(parts[0], "--points scenario")
     points = [P.parse_point(text) for text in args.points]  # a misnamed one: ValueError, exit 2
     config = configure(args)
     from dozerlab.reduce.jobs import reduce_points_job

@@ -16,7 +16,7 @@ from typing import Any
 from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.sections import Context, modules
-from dozerlab.runtime import atomic_output, check_output
+from dozerlab.runtime import atomic_output, job_outputs
 from dozerlab.sweep import by_role, fmt_number, sweep_points
 
 TITLE = "dozerlab report"
@@ -28,12 +28,12 @@ def build_report(
     """Write the report of the validated config's sweep, read from ``results``, to ``out``;
     ``processes`` draw the per-point figures side by side."""
     out = Path(out)
-    check_output(out, html.REPORT_PAGE)
-    ctx = Context(cfg, Path(results), tuple(sweep_points(cfg)), processes)
-    text = render_report(ctx)
-    with atomic_output(out, html.REPORT_PAGE) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return Path(out)
+    with job_outputs(("--out", out, html.REPORT_PAGE)):
+        ctx = Context(cfg, Path(results), tuple(sweep_points(cfg)), processes)
+        text = render_report(ctx)
+        with atomic_output(out, html.REPORT_PAGE) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    return out
 
 
 def render_report(ctx: Context) -> str:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output
 
 SCENARIOS: tuple[str, ...] = ("hill", "step")
 
@@ -29,8 +29,32 @@ _ARRAYS = (
     "settle_kinetic_energy",
     "settle_contacts",
 )
+
+
+def bed_file_output(path: Path) -> str | None:
+    """The command that wrote the bed file at ``path`` (its metadata's ``dozerlab_output``;
+    for a file written before that entry, what its ``info`` shows: a reduced run's state names
+    its dynamics model, NDEM's holds the time only); None for anything but a bed file."""
+    with np.load(path, allow_pickle=False) as data:
+        if not {"metadata", *_ARRAYS} <= set(data.files):
+            return None
+        meta = json.loads(str(data["metadata"]))
+    if "dozerlab_output" in meta:
+        return str(meta["dozerlab_output"])
+    info = meta.get("info", {})
+    if "dynamics_model" in info:
+        return "reduce-state"
+    return "simulate-state" if set(info) == {"time"} else "bed"
+
+
+def bed_file_kind(what: str, name: str) -> OutputKind:
+    """The kind of a bed file that ``name`` writes (``bed``, a run's final state): recognised
+    by :func:`bed_file_output`, so a bed is never replaced by a state, nor the other way."""
+    return OutputKind(what, lambda path: path.is_file() and bed_file_output(path) == name, name)
+
+
 #: What ``dozerlab bed`` writes: a ``.npz`` with the bed's metadata and arrays.
-BED_FILE = OutputKind("a dozerlab bed file (.npz)", npz_with(("metadata", *_ARRAYS)))
+BED_FILE = bed_file_kind("a dozerlab bed file (.npz) written by bed", "bed")
 
 
 @dataclass
@@ -90,8 +114,9 @@ class Bed:
         )
         return float((lin + rot).mean())
 
-    def save(self, path: str | Path) -> None:
-        """Write the bed to ``path`` (.npz) atomically."""
+    def save(self, path: str | Path, kind: OutputKind = BED_FILE) -> None:
+        """Write the bed to ``path`` (.npz) atomically, as the output ``kind`` (a bed, a run's
+        final state), whose name its metadata records."""
         meta = {
             "scenario": self.scenario,
             "length": self.length,
@@ -100,9 +125,10 @@ class Bed:
             "seed": self.seed,
             "info": self.info,
             "dozerlab_version": __version__,
+            "dozerlab_output": kind.name,
         }
         arrays = {name: getattr(self, name) for name in _ARRAYS}
-        with atomic_output(path, BED_FILE) as tmp, open(tmp, "wb") as fh:
+        with atomic_output(path, kind) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, metadata=np.array(json.dumps(meta)), **arrays)
 
     @classmethod
