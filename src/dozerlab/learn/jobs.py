@@ -79,7 +79,8 @@ class Family:
     per-epoch metrics; ``fit(kind, stores, config, **FitOptions)`` trains; ``pyfunc`` writes the
     model directory; ``recorded(config)`` gives the config parts recorded in the model's
     metadata and in the run's params; ``fit_metrics(model, stores)`` adds metrics on the
-    training stores to the run.
+    training stores to the run; ``family`` (``force``, ``evolution``) names the family in run
+    names and Model Registry names (:func:`dozerlab.tracking.registered_name`).
     """
 
     title: str
@@ -89,6 +90,7 @@ class Family:
     pyfunc: pyfunc.PyfuncFormat
     recorded: Callable[[dict[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     fit_metrics: Callable[[Any, list[StoreData]], dict[str, float]] = lambda model, stores: {}
+    family: str = "force"
 
 
 def _force_recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -141,6 +143,8 @@ def train_job(
             with_loop_fields(s, load_store(f)) for s, f in zip(stores, loop_fields, strict=True)
         ]
         rule, tags = "train_loop_force", tags | {"fields": "loop"}
+        if dynamics_model := loop_dynamics_model(loop_fields[0]):
+            tags["dynamics_model"] = dynamics_model
     check_grid(stores)  # counts and sizes of the bins agree
     seed = config.get("seed")
     meta_parts, param_parts = family.recorded(config)
@@ -151,7 +155,12 @@ def train_job(
         meta["loop_fields"] = [str(Path(p).resolve()) for p in loop_fields]
         params["loop_fields"] = ",".join(str(p) for p in loop_fields)
     name = f"{family.title}{kind}" + (" on the loop's fields" if loop_fields else "")
-    with tracking.job_run(config, f"train {name}", rule=rule, tags=tags, params=params) as run:
+    # the loop's force model: <kind>-loop-<dynamics model>, not to be confused with <kind>
+    model_name = (
+        "-".join([kind, "loop", tags.get("dynamics_model", "")]).strip("-") if loop_fields else kind
+    )
+    run_name = tracking.run_name("train", family.family, model_name)
+    with tracking.job_run(config, run_name, rule=rule, tags=tags, params=params) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
@@ -173,8 +182,17 @@ def train_job(
             with tempfile.TemporaryDirectory() as d:
                 png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
                 run.log_artifact(png)
-            result.model_uri = run.log_model(out)
+            registered = tracking.registered_name(config, family.family, model_name)
+            result.model_uri = run.log_model(out, registered)
     return result
+
+
+def loop_dynamics_model(store: str | Path) -> str:
+    """The dynamics model whose reduced loop wrote ``store`` (its ``dynamics_model`` attribute),
+    "" if the store does not say."""
+    from dozerlab.fields.store import open_store
+
+    return str(open_store(store).attrs.get("dynamics_model", ""))
 
 
 def held_out_params(
@@ -223,7 +241,11 @@ def validate_job(
     groups = load_groups(interpolation, extrapolation)
     params = held_out_params(model_dir, interpolation, extrapolation)
     with tracking.job_run(
-        config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
+        config,
+        tracking.run_name("validate", FORCE.family, model.kind),
+        rule="validate",
+        tags={"model": model.kind},
+        params=params,
     ) as run:
         result = validate(model, meta, groups, pdir, out.parent)
         metrics = flat(result["overall"], "overall")

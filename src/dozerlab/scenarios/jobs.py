@@ -33,7 +33,7 @@ def bed_job(
     params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
     params["scenario"] = config["scenarios"][scenario]
     with job_run(
-        config, f"bed {scenario}", rule="bed", tags={"scenario": scenario}, params=params
+        config, f"bed/{scenario}", rule="bed", tags={"scenario": scenario}, params=params
     ) as run:
         bed = build_bed(scenario, config, progress=progress)
         bed.save(out)

@@ -18,7 +18,7 @@ from dozerlab.learn.jobs import Family, held_out_params, record_validation, trai
 from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
 from dozerlab.runtime import OutputKind, json_with
-from dozerlab.tracking import job_run
+from dozerlab.tracking import job_run, run_name
 
 #: What ``validate-dynamics`` writes: held-out one-step and rollout metrics.
 VALIDATION_JSON = OutputKind(
@@ -34,7 +34,13 @@ def _recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
 
 #: The field-evolution models: ``dozerlab train-dynamics``.
 DYNAMICS = Family(
-    "dynamics ", "train_dynamics", "val_rollout_loss", train_dynamics, FORMAT, _recorded
+    "dynamics ",
+    "train_dynamics",
+    "val_rollout_loss",
+    train_dynamics,
+    FORMAT,
+    _recorded,
+    family="evolution",
 )
 
 
@@ -164,7 +170,7 @@ def validate_dynamics_job(
     tags = {"model": model.kind}
     with job_run(
         config,
-        f"validate dynamics {model.kind}",
+        run_name("validate", DYNAMICS.family, model.kind),
         rule="validate_dynamics",
         tags=tags,
         params=params,
