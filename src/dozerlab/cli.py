@@ -131,8 +131,7 @@ def _mlflow_end(args: argparse.Namespace) -> int:
             metrics[key] = float(value)
         except ValueError:
             raise ValueError(f"--metric {key} must be a number, got '{value}'") from None
-    for path in end_parent_run(args.run_id, args.status, args.artifact, metrics):
-        print(f"logged {path}", file=sys.stderr)
+    end_parent_run(args.run_id, args.status, args.artifact, metrics)
     return 0
 
 

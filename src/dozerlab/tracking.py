@@ -383,8 +383,8 @@ def end_parent_run(
     ``metrics`` (the sweep's headline figures) and ``wall_seconds`` (since the run began).
 
     Paths that do not exist, or that are older than the run (a report this invocation did not
-    rebuild), are skipped. Prints how many job runs the parent holds and the models this
-    invocation registered. Returns the paths logged.
+    rebuild), are skipped. Prints the paths logged, how many job runs the parent holds and the
+    models this invocation registered. Returns the paths logged.
     """
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got '{status}'")
@@ -403,6 +403,7 @@ def end_parent_run(
         if path.is_file() and path.stat().st_mtime >= started:
             client.log_artifact(run_id, str(path))
             logged.append(path)
+            print(f"MLflow: logged {path} on the workflow run", file=sys.stderr)
     now = int(time.time() * 1000)
     figures = {**(metrics or {}), "wall_seconds": now / 1000.0 - started}
     client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in figures.items()])
@@ -412,10 +413,10 @@ def end_parent_run(
         filter_string=f"tags.mlflow.parentRunId = '{run_id}'",
         max_results=10000,
     )
+    experiment = client.get_experiment(run.info.experiment_id).name
     print(
         f"MLflow: {len(children)} job runs under workflow run {run_id} "
-        f"(experiment {client.get_experiment(run.info.experiment_id).name}, {uri}); "
-        + registered_summary(client, run_id),
+        f"(experiment {experiment}, {uri})\n        " + registered_summary(client, run_id),
         file=sys.stderr,
     )
     return logged
