@@ -40,30 +40,41 @@ def test_a_job_is_one_line_when_it_starts_and_one_with_the_progress_when_it_ends
     assert done.endswith("[5/37, 14%]") and "\n" not in done
 
 
-def test_the_plan_is_one_line_and_a_failure_names_its_log():
+def test_the_plan_is_one_line_and_a_failure_names_its_log_and_shows_its_end(tmp_path):
     fmt = console.ConsoleFormatter()
     stats = {"bed": 1, "simulate": 6, "all": 1, "total": 8}
     plan = fmt.format(record("Job stats: ...", event=LogEvent.RUN_INFO, stats=stats))
     assert plan == "8 jobs: bed 1, simulate 6, all 1"
-    fmt.format(
-        record("", event=LogEvent.JOB_INFO, jobid=3, rule_name="train", wildcards={"model": "unet"})
-    )
+    info = {"jobid": 3, "rule_name": "train", "wildcards": {"model": "unet"}}
+    fmt.format(record("", event=LogEvent.JOB_INFO, **info))
+    log = tmp_path / "unet.log"
+    log.write_text("epoch 1\n" * 50 + "dozerlab train: error: no such store 'x.zarr'\n\n")
     failed = fmt.format(
         record(
             "Error in rule train",
             event=LogEvent.JOB_ERROR,
-            jobid=3,
-            rule_name="train",
-            log=["logs/train/unet.log"],
+            log=[str(log)],
             rule_msg=None,
             shellcmd="python -m dozerlab train " + "y" * 2000,
+            **info,
         )
+    ).splitlines()
+    assert failed[0].endswith(f"FAILED train model=unet  (job 3): see {log}")
+    assert failed[1:] == [
+        "    epoch 1",
+        "    epoch 1",
+        "    dozerlab train: error: no such store 'x.zarr'",
+    ]
+    # Python's words for the failed command hold the whole command line: not on the console
+    raised = (
+        "RuleException:\nCalledProcessError in file x.smk:\nCommand 'python -m dozerlab "
+        + "{" * 2000
     )
-    assert failed.endswith("FAILED train model=unet  (job 3): see logs/train/unet.log")
+    said = fmt.format(record(raised + "' returned non-zero exit status 2."))
+    assert len(said) < 200 and said.endswith("returned non-zero exit status 2.")
     assert fmt.format(record("Select jobs to execute...")) == ""
-    assert fmt.format(
-        record("Nothing to be done (all requested files are present and up to date).")
-    ).startswith("Nothing")
+    nothing = "Nothing to be done (all requested files are present and up to date)."
+    assert fmt.format(record(nothing)) == nothing
 
 
 def test_install_replaces_the_console_handler_and_keeps_the_file_log(tmp_path):

@@ -9,6 +9,7 @@ handler with one that writes::
     23:01:07  start  simulate scenario=hill speed=1.0 depth=0.04  (job 9)
     23:01:31  done   simulate scenario=hill speed=1.0 depth=0.04  (24 s)  [5/37, 14%]
     23:01:31  FAILED train model=unet  (job 12): see logs/train/unet.log
+        (the last lines of that log)
 
 Snakemake's own log (``.snakemake/log/*.snakemake.log``, named at the end of the run) keeps
 everything its console would have said, shell commands included; each job's output is in the
@@ -18,6 +19,7 @@ rule's ``log:`` file. Dry runs (``-n``) and ``--verbose`` keep Snakemake's conso
 from __future__ import annotations
 
 import logging
+import re
 import sys
 import time
 from collections.abc import Mapping
@@ -31,6 +33,10 @@ QUIET_MESSAGES = (
     "Rules claiming more threads",
     "Assuming unrestricted shared filesystem",
 )
+#: A failed shell command as Python words it: the command is the rule's, config JSON and all.
+FAILED_COMMAND = re.compile(r"Command '.*' returned non-zero", re.DOTALL)
+#: Lines of a failed job's log shown under its FAILED line (its error is at the end).
+LOG_TAIL_LINES = 3
 
 
 def _event(record: logging.LogRecord) -> str:
@@ -49,6 +55,20 @@ def plan_line(stats: Mapping[str, int]) -> str:
     rules = {k: v for k, v in stats.items() if k != "total"}
     total = stats.get("total", sum(rules.values()))
     return f"{total} jobs: " + ", ".join(f"{k} {v}" for k, v in rules.items())
+
+
+def log_tail(path: str, lines: int = LOG_TAIL_LINES, width: int = 300) -> list[str]:
+    """The last ``lines`` non-empty lines of the log at ``path``, each cut to ``width``
+    characters; none if it cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            f.seek(max(0, f.tell() - 16384))
+            text = f.read().decode("utf-8", "replace")
+    except OSError:
+        return []
+    kept = [line.rstrip()[:width] for line in text.splitlines() if line.strip()]
+    return kept[-lines:]
 
 
 class ConsoleFormatter(logging.Formatter):
@@ -88,9 +108,10 @@ class ConsoleFormatter(logging.Formatter):
         if event == "job_error":
             job = int(extra["jobid"])
             label = self.jobs.pop(job, (job_label(str(extra["rule_name"]), None), 0.0))[0]
-            logs = ", ".join(extra.get("log") or []) or "the .snakemake/log file"
+            logs = [str(p) for p in extra.get("log") or []]
             why = f" ({extra['rule_msg']})" if extra.get("rule_msg") else ""
-            return f"{stamp}  FAILED {label}  (job {job}){why}: see {logs}"
+            head = f"{stamp}  FAILED {label}  (job {job}){why}: see {', '.join(logs) or 'the Snakemake log'}"
+            return "\n".join([head, *(f"    {line}" for p in logs for line in log_tail(p))])
         if event == "run_info" and isinstance(extra.get("stats"), Mapping):
             return plan_line(extra["stats"])
         if event in ("shellcmd", "job_started", "workflow_started", "resources_info"):
@@ -98,7 +119,9 @@ class ConsoleFormatter(logging.Formatter):
         text = self.fallback.format(record)
         if not event and text.startswith(QUIET_MESSAGES):
             return ""
-        return text
+        return FAILED_COMMAND.sub(
+            "The job's command (in the Snakemake log) returned non-zero", text
+        )
 
 
 class ConsoleHandler(logging.StreamHandler):
