@@ -97,3 +97,16 @@ def test_install_replaces_the_console_handler_and_keeps_the_file_log(tmp_path):
     assert out.getvalue() == "Building DAG of jobs...\n"
     assert "Shell command: python -m dozerlab bed" in (tmp_path / "snakemake.log").read_text()
     assert not console.install(logging.getLogger("test_console_none"))
+
+
+def test_a_dry_run_keeps_snakemakes_console():
+    from snakemake.logging import DefaultFilter
+
+    logger = logging.getLogger("test_console_dry")
+    old = ColorizingTextHandler(stream=io.StringIO())
+    old.addFilter(DefaultFilter(None, False, False, True, True))  # dryrun
+    logger.addHandler(old)
+    try:
+        assert not console.install(logger) and old in logger.handlers
+    finally:
+        logger.removeHandler(old)

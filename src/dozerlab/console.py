@@ -142,11 +142,17 @@ def install(logger: logging.Logger, stream: TextIO | None = None) -> bool:
     to ``stream`` (default stderr); return whether there was one to replace.
 
     The replaced handler's filters (Snakemake's ``--quiet`` choices) stay; its file handler
-    (``.snakemake/log``) and the handlers of logger plugins are left as they are.
+    (``.snakemake/log``) and the handlers of logger plugins are left as they are. A dry run
+    (``-n``) or ``--verbose`` keeps Snakemake's console: its filter says so (the workflow's own
+    ``dryrun`` is not known yet when the Snakefile is read).
     """
     from snakemake.logging import ColorizingTextHandler
 
-    found = [h for h in logger.handlers if isinstance(h, ColorizingTextHandler)]
+    def wanted(handler: logging.Handler) -> bool:
+        says = [getattr(f, k, False) for f in handler.filters for k in ("dryrun", "verbose")]
+        return isinstance(handler, ColorizingTextHandler) and not any(says)
+
+    found = [h for h in logger.handlers if wanted(h)]
     for old in found:
         new = ConsoleHandler(stream or sys.stderr)
         new.setFormatter(ConsoleFormatter(old.formatter))

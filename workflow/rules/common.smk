@@ -20,9 +20,9 @@ from dozerlab import sweep as P
 
 STARTED = time.time()
 # One line per job start and end on the console (dozerlab.console); Snakemake's log under
-# .snakemake/log keeps its full output, shell commands included. Dry runs keep Snakemake's.
-if not workflow.dryrun and not workflow.output_settings.verbose:
-    console.install(logger)
+# .snakemake/log keeps its full output, shell commands included. Dry runs (-n) and --verbose
+# keep Snakemake's.
+console.install(logger)
 
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))
