@@ -7,7 +7,7 @@ Read from the files the rules write (paths from :mod:`dozerlab.sweep`); a result
 
 - ``results/validation/{model}.json``: each force model's relative RMSE of the blade's force
   along x on all held-out points (``overall.force_x.rel_rmse``, a fraction);
-- ``results/dynamics/validation/{model}.json``: each evolution model's relative velocity error
+- ``results/dynamics/{model}.json``: each evolution model's relative velocity error
   on the held-out points one step ahead and at the longest rollout (fractions);
 - ``results/reduced/{model}.json``: the reduced simulation of each dynamics model against NDEM
   on the held-out points (means of accuracies and errors, the least speed-ups) and which of
