@@ -37,6 +37,7 @@ onstart:
 
 
 onsuccess:
+    print_summary()
     end_parent_run("FINISHED", log)
 
 

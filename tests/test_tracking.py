@@ -147,7 +147,7 @@ def test_tracking_off_yields_no_run_and_writes_no_store(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
+def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path, capsys):
     parent = tracking.start_parent_run(
         "dozerlab", "workflow", config={"solver": {"dt": 0.01}}, tags={"configfiles": "a.yaml"}
     )
@@ -163,13 +163,23 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
         del os.environ[tracking.PARENT_ENV]
     report = tmp_path / "index.html"
     report.write_text("<html></html>")
-    logged = tracking.end_parent_run(parent, "FINISHED", [report, tmp_path / "absent.log"])
+    headline = {"force_x_rel_rmse/best": 0.25}
+    logged = tracking.end_parent_run(
+        parent, "FINISHED", [report, tmp_path / "absent.log"], headline
+    )
     assert logged == [report]
+    # the count of every job run under the parent, not only those ingested at its end
+    said = capsys.readouterr().err
+    assert f"MLflow: 2 job runs under workflow run {parent}" in said
+    assert "models registered: none" in said
 
     run = mlflow_store.get_run(parent)
     assert run.info.status == "FINISHED"
     assert run.data.params == {"solver.dt": "0.01"}
     assert run.data.tags["rule"] == "workflow" and run.data.tags["configfiles"] == "a.yaml"
+    assert run.data.tags["role"] == "parent"
+    assert run.data.metrics["force_x_rel_rmse/best"] == 0.25
+    assert run.data.metrics["wall_seconds"] >= 0
     assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
     exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {
@@ -180,6 +190,28 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
     assert children["simulate hill"].data.tags["speed"] == "1.0"
     assert children["simulate hill"].data.params == {"solver.dt": "0.01"}
     assert children["train"].info.status == "FAILED"
+    assert [children[n].data.tags["role"] for n in ("simulate hill", "train")] == [
+        "simulate",
+        "train",
+    ]
+
+
+def test_run_and_registry_names_have_one_style():
+    assert tracking.run_name("simulate", "hill", "speed~1_depth~0.04") == (
+        "simulate/hill/speed~1_depth~0.04"
+    )
+    assert tracking.run_name("compare", "ridge", None, "") == "compare/ridge"
+    mine = {"mlflow": {"experiment": "mine"}}
+    assert tracking.registered_name(mine, "evolution", "unet") == "mine-evolution-unet"
+    assert tracking.registered_name(None, "force", "cnn") == "dozerlab-force-cnn"
+    assert set(tracking.ROLES.values()) == {
+        "bed",
+        "simulate",
+        "train",
+        "validate",
+        "reduce",
+        "compare",
+    }
 
 
 def test_end_parent_run_refuses_an_unknown_status(mlflow_store):

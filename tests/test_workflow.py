@@ -87,7 +87,22 @@ def quick(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("quick")
     done = snakemake(workdir)
     assert done.returncode == 0, done.stderr[-5000:]
+    (workdir / "console.txt").write_text(done.stderr)
     return workdir
+
+
+def test_the_console_is_one_line_per_job_start_and_end_and_a_summary(quick):
+    console = (quick / "console.txt").read_text()
+    jobs = sum(expected_job_runs(CFG).values())
+    assert "Shell command" not in console and "reason:" not in console
+    assert max(len(line) for line in console.splitlines()) < 400
+    assert len(re.findall(r"^\S+  start  ", console, re.M)) > jobs  # and the trajectories, report
+    assert re.search(r"done   all  \(\d+ s\)  \[(\d+)/\1, 100%\]$", console, re.M), console[-3000:]
+    assert "report    results/report/index.html" in console
+    assert f"MLflow: {jobs} job runs under workflow run" in console
+    # Snakemake's own log keeps what the console leaves out
+    (log,) = (quick / ".snakemake" / "log").glob("*.snakemake.log")
+    assert "python -m dozerlab simulate" in log.read_text()
 
 
 def test_stores_open_and_nothing_half_written_is_left(quick):
@@ -213,6 +228,33 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
         if r.data.tags["rule"] == "simulate"
     }
     assert sims == {(p.scenario, p.speed, p.depth) for p in POINTS}
+    groups = {
+        "train": "training",
+        "interpolation": "interpolation",
+        "extrapolation": "extrapolation",
+    }
+    for r in children:
+        tags = r.data.tags
+        assert r.info.run_name.startswith(tags["role"] + "/"), r.info.run_name
+        if tags["rule"] == "simulate":
+            point = next(
+                p
+                for p in POINTS
+                if (p.speed, p.depth) == (float(tags["speed"]), float(tags["depth"]))
+            )
+            assert tags["group"] == groups[point.role]
+            assert r.info.run_name == f"simulate/{point.scenario}/{point.name}"
+    assert parent.data.tags["role"] == "parent" and parent.info.run_name == "sweep/quick"
+    # the sweep's headline figures compare sweeps in MLflow's chart view
+    assert {f"force_x_rel_rmse/{m}" for m in MODELS} < set(parent.data.metrics)
+    assert {f"reduced_{m}/height_accuracy" for m in REDUCED} < set(parent.data.metrics)
+    assert parent.data.metrics["wall_seconds"] > 0
+    # every trained model is registered by kind: models:/NAME/VERSION
+    query = f"tags.`dozerlab.parent_run_id` = '{parent.info.run_id}'"
+    names = {v.name for v in client.search_model_versions(query)}
+    assert {f"dozerlab-force-{m}" for m in MODELS} | {
+        f"dozerlab-evolution-{m}" for m in DYNAMICS
+    } < names
 
 
 def test_report_has_table_figures_and_models(quick):

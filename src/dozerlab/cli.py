@@ -85,6 +85,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PATH",
         help="a file to log if this invocation wrote it (repeatable)",
     )
+    p.add_argument(
+        "--metric",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a headline figure of the sweep to log on the run (repeatable)",
+    )
     p.set_defaults(func=_mlflow_end)
 
     p = add_command(
@@ -110,17 +117,23 @@ def _config(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pairs(items: Sequence[str], flag: str) -> dict[str, str]:
+    """``KEY=VALUE`` arguments of ``flag`` as a dict; a ValueError naming the flag if not."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{flag} must be KEY=VALUE, got '{item}'")
+        out[key] = value
+    return out
+
+
 def _mlflow_start(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
     from dozerlab.tracking import start_parent_run
 
     cfg = load_config(args.config)
-    tags = {}
-    for item in args.tag:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--tag must be KEY=VALUE, got '{item}'")
-        tags[key] = value
+    tags = _pairs(args.tag, "--tag")
     experiment = args.experiment or cfg["mlflow"]["experiment"]
     print(start_parent_run(experiment, args.name, config=cfg, tags=tags))
     return 0
@@ -129,8 +142,13 @@ def _mlflow_start(args: argparse.Namespace) -> int:
 def _mlflow_end(args: argparse.Namespace) -> int:
     from dozerlab.tracking import end_parent_run
 
-    for path in end_parent_run(args.run_id, args.status, args.artifact):
-        print(f"logged {path}", file=sys.stderr)
+    metrics = {}
+    for key, value in _pairs(args.metric, "--metric").items():
+        try:
+            metrics[key] = float(value)
+        except ValueError:
+            raise ValueError(f"--metric {key} must be a number, got '{value}'") from None
+    end_parent_run(args.run_id, args.status, args.artifact, metrics)
     return 0
 
 

@@ -8,13 +8,21 @@ import shlex
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
+from snakemake.logging import logger
 
-from dozerlab import cluster, runtime, spool, tracking
+from dozerlab import cluster, console, headline, runtime, spool, tracking
 from dozerlab.config import load_config, schema
 from dozerlab import sweep as P
+
+STARTED = time.time()
+# One line per job start and end on the console (dozerlab.console); Snakemake's log under
+# .snakemake/log keeps its full output, shell commands included. Dry runs (-n) and --verbose
+# keep Snakemake's.
+console.install(logger)
 
 # Validate before any job runs: a bad value stops here with its field name and allowed range.
 config.update(load_config(config))
@@ -204,21 +212,35 @@ def check_cluster_fit():
     cluster.check_fit(requests, cluster.slurm_nodes())
 
 
+def sweep_name():
+    """The parent run's name: ``sweep/`` and the stems of the config files (the Snakefile's
+    config/config.yaml left out when others are laid over it), e.g. ``sweep/quick``."""
+    files = list(dict.fromkeys(Path(f).resolve() for f in workflow.configfiles))
+    default = Path("config", "config.yaml").resolve()
+    stems = [f.stem for f in files if f != default or len(files) == 1]
+    return "sweep/" + "+".join(stems or ["config"])
+
+
 def start_parent_run():
     """Start this invocation's parent MLflow run and export its id to the jobs' environment."""
     if not tracking.enabled():
         return
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-start", "--config", json.dumps(config),
-           "--name", "workflow", "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
+           "--name", sweep_name(), "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
     try:
         # In its own session: Ctrl-C reaches Snakemake alone, which stops the command below.
-        done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, start_new_session=True)
+        done = subprocess.run(cmd, capture_output=True, text=True, start_new_session=True)
     except KeyboardInterrupt:
         # Before any job: say so and stop (SystemExit: no traceback, Snakemake's lock released).
         print("dozerlab: interrupted while starting the MLflow parent run; no job ran", file=sys.stderr)
         sys.exit(130)
     if done.returncode != 0:
+        print(done.stderr, end="", file=sys.stderr)
         raise WorkflowError(f"dozerlab mlflow-start failed (exit {done.returncode}); see the message above")
+    # dozerlab's own lines (runs closed or logged for a killed workflow), not MLflow's chatter
+    for line in done.stderr.splitlines():
+        if line.startswith(("closed parent run", "logged", "spooled runs")):
+            print(line, file=sys.stderr)
     os.environ[tracking.PARENT_ENV] = done.stdout.strip()
     start_ingest(os.environ[tracking.PARENT_ENV])
 
@@ -255,7 +277,8 @@ def stop_ingest():
 
 
 def end_parent_run(status, log):
-    """End the parent run with ``status``, attaching the report and Snakemake's log if new.
+    """End the parent run with ``status``, attaching the report and Snakemake's log if new and
+    the sweep's headline figures (dozerlab.headline) as its metrics.
 
     Snakemake 9 passes ``log`` as the list of its log files (a path in older versions).
     """
@@ -268,4 +291,13 @@ def end_parent_run(status, log):
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]
+    for key, value in headline.metrics(RESULTS, config).items():
+        cmd += ["--metric", f"{key}={value!r}"]
     subprocess.run(cmd, check=status != "FINISHED")
+
+
+def print_summary():
+    """The closing lines of a run that built the sweep: wall time, report, best models, the
+    reduced simulation's targets met and missed (dozerlab.headline)."""
+    for line in headline.summary_lines(RESULTS, config, time.time() - STARTED):
+        print(line, file=sys.stderr)

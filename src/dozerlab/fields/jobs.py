@@ -17,6 +17,7 @@ from dozerlab.fields.run import STATE_FILE, VTK_FOLDER, drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FIELD_STORE, open_store
 from dozerlab.runtime import OutputKind, freeze_heap, job_outputs
+from dozerlab.sweep import fmt_number, point_name
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +108,8 @@ def _simulate(
         "config": json.dumps(config, sort_keys=True),
     }
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
-    name = f"simulate {scenario} v={speed} d={depth}"
+    point = point_name(speed, depth) if depth is not None else f"speed~{fmt_number(speed)}"
+    name = tracking.run_name("simulate", scenario, point)
     freeze_heap()  # as the reduce job does: the two loops are timed against each other
     with tracking.job_run(
         config,

@@ -92,7 +92,8 @@ class Family:
     model directory; ``recorded(config)`` gives the config parts recorded in the model's
     metadata and in the run's params; ``fit_metrics(model, stores)`` adds metrics on the
     training stores to the run. ``output`` is the kind of model directory the family's
-    command writes.
+    command writes; ``family`` (``force``, ``evolution``) names the family in run
+    names and Model Registry names (:func:`dozerlab.tracking.registered_name`).
     """
 
     title: str
@@ -103,6 +104,7 @@ class Family:
     recorded: Callable[[dict[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     fit_metrics: Callable[[Any, list[StoreData]], dict[str, float]] = lambda model, stores: {}
     output: OutputKind = MODEL_DIR
+    family: str = "force"
 
 
 def _force_recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -168,6 +170,8 @@ def _train(
             with_loop_fields(s, load_store(f)) for s, f in zip(stores, loop_fields, strict=True)
         ]
         rule, tags = "train_loop_force", tags | {"fields": "loop"}
+        if dynamics_model := loop_dynamics_model(loop_fields[0]):
+            tags["dynamics_model"] = dynamics_model
     check_grid(stores)  # counts and sizes of the bins agree
     seed = config.get("seed")
     meta_parts, param_parts = family.recorded(config)
@@ -178,7 +182,12 @@ def _train(
         meta["loop_fields"] = [str(Path(p).resolve()) for p in loop_fields]
         params["loop_fields"] = ",".join(str(p) for p in loop_fields)
     name = f"{family.title}{kind}" + (" on the loop's fields" if loop_fields else "")
-    with tracking.job_run(config, f"train {name}", rule=rule, tags=tags, params=params) as run:
+    # the loop's force model: <kind>-loop-<dynamics model>, not to be confused with <kind>
+    model_name = (
+        "-".join([kind, "loop", tags.get("dynamics_model", "")]).strip("-") if loop_fields else kind
+    )
+    run_name = tracking.run_name("train", family.family, model_name)
+    with tracking.job_run(config, run_name, rule=rule, tags=tags, params=params) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
@@ -200,8 +209,17 @@ def _train(
             with tempfile.TemporaryDirectory() as d:
                 png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
                 run.log_artifact(png)
-            result.model_uri = run.log_model(out)
+            registered = tracking.registered_name(config, family.family, model_name)
+            result.model_uri = run.log_model(out, registered)
     return result
+
+
+def loop_dynamics_model(store: str | Path) -> str:
+    """The dynamics model whose reduced loop wrote ``store`` (its ``dynamics_model`` attribute),
+    "" if the store does not say."""
+    from dozerlab.fields.store import open_store
+
+    return str(open_store(store).attrs.get("dynamics_model", ""))
 
 
 def held_out_params(
@@ -250,9 +268,13 @@ def validate_job(
         model, meta = pyfunc.load(model_dir)
         groups = load_groups(interpolation, extrapolation)
         params = held_out_params(model_dir, interpolation, extrapolation)
-        tags = {"model": model.kind}
-        name = f"validate {model.kind}"
-        with tracking.job_run(config, name, rule="validate", tags=tags, params=params) as run:
+        with tracking.job_run(
+            config,
+            tracking.run_name("validate", FORCE.family, model.kind),
+            rule="validate",
+            tags={"model": model.kind},
+            params=params,
+        ) as run:
             with atomic_output(pdir, VALIDATION_PLOTS) as tmp:
                 tmp.mkdir()
                 result = validate(model, meta, groups, tmp, out.parent, plots_at=pdir)

@@ -169,7 +169,8 @@ def _tracked_reduce(
     from dozerlab.reduce.run import reduce_run
 
     scenario, speed, depth = target.scenario, target.speed, target.depth
-    name = f"reduce {field_model.name} {scenario} v={speed} d={depth}"
+    point = P.point_name(speed, depth) if speed is not None and depth is not None else None
+    name = tracking.run_name("reduce", field_model.name, scenario, point)
     tags = {
         "scenario": scenario,
         "speed": speed,
@@ -249,7 +250,7 @@ def _compare(
     targets = config["reduced"]["targets"]
     entries: list[dict[str, Any]] = []
     with tracking.tracked_run(
-        f"compare_reduced {dynamics_model}",
+        tracking.run_name("compare", dynamics_model),
         rule="compare_reduced",
         tags={"model": dynamics_model},
         params={"reduced": config["reduced"]},

@@ -32,7 +32,7 @@ def bed_job(
     with (
         job_outputs(("--out", out, BED_FILE), ("--plot", plot or None, BED_PLOT)),
         job_run(
-            config, f"bed {scenario}", rule="bed", tags={"scenario": scenario}, params=params
+            config, f"bed/{scenario}", rule="bed", tags={"scenario": scenario}, params=params
         ) as run,
     ):
         bed = build_bed(scenario, config, progress=progress)

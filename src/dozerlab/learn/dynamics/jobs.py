@@ -18,7 +18,7 @@ from dozerlab.learn.jobs import Family, held_out_params, record_validation, trai
 from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
 from dozerlab.runtime import OutputKind, atomic_output, job_outputs, json_with, marked_folder
-from dozerlab.tracking import job_run
+from dozerlab.tracking import job_run, run_name
 
 #: What ``validate-dynamics`` writes: held-out one-step and rollout metrics.
 VALIDATION_JSON = OutputKind(
@@ -47,6 +47,7 @@ DYNAMICS = Family(
     FORMAT,
     _recorded,
     output=MODEL_DIR,
+    family="evolution",
 )
 
 
@@ -196,7 +197,7 @@ def _validate_dynamics(
     tags = {"model": model.kind}
     with job_run(
         config,
-        f"validate dynamics {model.kind}",
+        run_name("validate", DYNAMICS.family, model.kind),
         rule="validate_dynamics",
         tags=tags,
         params=params,
