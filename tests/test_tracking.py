@@ -159,16 +159,24 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
             raise RuntimeError("boom")
     finally:
         del os.environ[tracking.PARENT_ENV]
-    report = tmp_path / "index.html"
-    report.write_text("<html></html>")
-    logged = tracking.end_parent_run(parent, "FINISHED", [report, tmp_path / "absent.log"])
-    assert logged == [report]
+    report = tmp_path / "report"  # the report's folder: the page and its animations
+    (report / "animations").mkdir(parents=True)
+    (report / "index.html").write_text("<html></html>")
+    (report / "animations" / "a.gif").write_bytes(b"GIF89a")
+    log = tmp_path / "snakemake.log"
+    log.write_text("done")
+    logged = tracking.end_parent_run(parent, "FINISHED", [report, log, tmp_path / "absent.log"])
+    assert logged == [report, log]
 
     run = mlflow_store.get_run(parent)
     assert run.info.status == "FINISHED"
     assert run.data.params == {"solver.dt": "0.01"}
     assert run.data.tags["rule"] == "workflow" and run.data.tags["configfiles"] == "a.yaml"
-    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
+    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["report", "snakemake.log"]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report")] == [
+        "report/animations",
+        "report/index.html",
+    ]
     exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {
         r.info.run_name: r

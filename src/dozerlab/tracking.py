@@ -322,7 +322,8 @@ def start_parent_run(
 def end_parent_run(
     run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()
 ) -> list[Path]:
-    """End the parent run with ``status``, logging each of ``artifacts`` written since it began.
+    """End the parent run with ``status``, logging each of ``artifacts`` written since it began:
+    a file, or a folder (the report's) whose files are logged under its name.
 
     Paths that do not exist, or that are older than the run (a report this invocation did not
     rebuild), are skipped. Returns the paths logged.
@@ -342,8 +343,16 @@ def end_parent_run(
         if path.is_file() and path.stat().st_mtime >= started:
             client.log_artifact(run_id, str(path))
             logged.append(path)
+        elif path.is_dir() and _newest(path) >= started:
+            client.log_artifacts(run_id, str(path), artifact_path=path.name)
+            logged.append(path)
     client.set_terminated(run_id, status=status)
     return logged
+
+
+def _newest(folder: Path) -> float:
+    """The latest modification time (s since the epoch) of the files under ``folder``, 0 if none."""
+    return max((f.stat().st_mtime for f in folder.rglob("*") if f.is_file()), default=0.0)
 
 
 def _remove_if_empty(folder: Path) -> None:

@@ -6,13 +6,28 @@ from concurrent.futures import ProcessPoolExecutor
 from itertools import repeat
 
 from dozerlab.report import html
-from dozerlab.report.collect import point_figures
+from dozerlab.report.collect import point_figures, summarize
 from dozerlab.report.sections import Context
 from dozerlab.report.sections.sweep import LABELS
 from dozerlab.sweep import fmt_number
 
 TITLE = "Runs"
 ORDER = 40
+
+
+def verdict(ctx: Context) -> str | None:
+    """What each run shows, and where and when the largest blade force of the sweep was."""
+    peaks = [s for s in (summarize(ctx.results, p) for p in ctx.points) if s.peak_force]
+    if not peaks:
+        return None
+    top = max(peaks, key=lambda s: s.peak_force or 0.0)
+    p = top.point
+    return (
+        f"{len(peaks)} runs, each with its blade trajectory, a mid-run field slice and the blade "
+        f"force over time; the sweep's largest |F|, {(top.peak_force or 0.0) / 1000:.2f} kN, is "
+        f"that of {p.scenario} {fmt_number(p.speed)} m/s, {fmt_number(p.depth)} m at "
+        f"t = {top.peak_time:.2f} s of {top.simulated:.2f} s."
+    )
 
 
 def render(ctx: Context) -> str | None:

@@ -14,6 +14,7 @@ from dozerlab.sweep import fmt_number
 
 TITLE = "Sweep"
 ORDER = 20
+QUESTION = "What the sweep covered"
 
 #: Marker of each role on the sweep map.
 MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s"}
@@ -25,6 +26,7 @@ LABELS = {
 
 
 def _kn(newton: float | None) -> float | None:
+    """A force in kN, the report's unit of force, from N."""
     return None if newton is None else newton / 1000.0
 
 
@@ -58,6 +60,45 @@ def _row(s: PointSummary) -> list[Any]:
         _kn(s.mean_force),
         _kn(s.peak_force),
     ]
+
+
+def verdict(ctx: Context) -> str | None:
+    """The runs simulated out of the sweep's, their range of mean |F| (kN) and stepping time."""
+    summaries = [summarize(ctx.results, p) for p in ctx.points]
+    built = [s for s in summaries if s.built]
+    if not built:
+        return None
+    held = sum(s.point.role != "train" for s in built)
+    speeds = [p.speed for p in ctx.points]
+    depths = [p.depth for p in ctx.points]
+    text = (
+        f"{len(built)} of {len(summaries)} NDEM runs simulated "
+        f"({len(built) - held} training, {held} held out) on "
+        f"{', '.join(dict.fromkeys(p.scenario for p in ctx.points))}, blade speeds "
+        f"{_span(min(speeds), max(speeds), fmt_number)} m/s, cut depths "
+        f"{_span(min(depths), max(depths), fmt_number)} m"
+    )
+    forced = [s for s in built if s.mean_force is not None]
+    if forced:
+        lo = min(forced, key=lambda s: s.mean_force or 0.0)
+        hi = max(forced, key=lambda s: s.mean_force or 0.0)
+        text += f"; mean |F| {_kn(lo.mean_force):.2f} kN ({_where(lo)})"
+        if hi.mean_force != lo.mean_force:
+            text += f" to {_kn(hi.mean_force):.2f} kN ({_where(hi)})"
+    timed = [s.wall_time for s in built if s.wall_time is not None]
+    if timed:
+        text += f"; stepping took {_span(min(timed), max(timed), lambda v: f'{v:.0f}')} s a run"
+    return text + "."
+
+
+def _span(lo: float, hi: float, number: Any) -> str:
+    """``lo–hi`` as ``number`` writes them, one number when they read the same."""
+    a, b = number(lo), number(hi)
+    return a if a == b else f"{a}–{b}"
+
+
+def _where(s: PointSummary) -> str:
+    return f"{s.point.scenario} {fmt_number(s.point.speed)} m/s, {fmt_number(s.point.depth)} m"
 
 
 def render(ctx: Context) -> str | None:
