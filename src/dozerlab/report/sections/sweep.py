@@ -16,8 +16,11 @@ TITLE = "Sweep"
 ORDER = 20
 QUESTION = "What the sweep covered"
 
-#: Marker of each role on the sweep map.
+#: Marker of each role on the sweep map, its edge colour and width (pt), and the markers' area
+#: (pt²).
 MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s"}
+EDGES = {"train": ("k", 0.8), "interpolation": ("crimson", 2.2), "extrapolation": ("crimson", 2.2)}
+MARKER_AREA = 170
 LABELS = {
     "train": "training",
     "interpolation": "held out, interpolation",
@@ -109,8 +112,8 @@ def render(ctx: Context) -> str | None:
         html.figure(
             sweep_map(summaries),
             "Mean blade force magnitude |F| over each run, by blade speed and cut depth; the "
-            "held-out points (diamonds, squares) are never seen in training. Hollow grey: not "
-            "simulated yet.",
+            "held-out points (diamonds, squares, red edges) are never seen in training. Hollow "
+            "grey: not simulated yet.",
         ),
         html.table(COLUMNS, [_row(s) for s in summaries]),
         html.paragraph(
@@ -127,6 +130,7 @@ def render(ctx: Context) -> str | None:
 def sweep_map(summaries: list[PointSummary]) -> Any:
     """A figure per scenario of the points on the speed (m/s) × depth (m) plane, coloured by
     mean |F| (kN, one colour scale), marked by role and labelled with their force."""
+    from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
@@ -147,7 +151,7 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                 p = s.point
                 if p.scenario != scenario:
                     continue
-                style: dict[str, Any] = {"marker": MARKERS[p.role], "s": 170, "zorder": 3}
+                style: dict[str, Any] = {"marker": MARKERS[p.role], "s": MARKER_AREA, "zorder": 3}
                 if s.mean_force is None:
                     ax.scatter(p.speed, p.depth, facecolors="none", edgecolors="0.6", **style)
                     continue
@@ -157,8 +161,8 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                     c=[s.mean_force / 1000],
                     cmap="viridis",
                     norm=norm,
-                    edgecolors="k" if p.role == "train" else "crimson",
-                    linewidths=0.8 if p.role == "train" else 2.2,
+                    edgecolors=EDGES[p.role][0],
+                    linewidths=EDGES[p.role][1],
                     **style,
                 )
                 ax.annotate(
@@ -180,15 +184,29 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
         fig.colorbar(
             ScalarMappable(norm=norm, cmap="viridis"), ax=list(axes), label="mean |F| (kN)"
         )
+        # the legend's markers drawn as the points are: filled from the colour scale (its
+        # middle), edged by role, at the points' size (scatter's s is the area in pt²)
+        size, fill = float(np.sqrt(MARKER_AREA)), colormaps["viridis"](0.5)
         handles = [
             Line2D(
-                [], [], marker=MARKERS[r], ls="", ms=10, mfc="0.85", mec=c, mew=w, label=LABELS[r]
+                [], [], marker=MARKERS[r], ls="", ms=size, mfc=fill, mec=c, mew=w, label=LABELS[r]
             )
-            for r, c, w in (
-                ("train", "k", 0.8),
-                ("interpolation", "crimson", 2.2),
-                ("extrapolation", "crimson", 2.2),
-            )
+            for r, (c, w) in EDGES.items()
         ]
-        fig.legend(handles=handles, loc="outside lower center", ncols=3, frameon=False)
+        if any(s.mean_force is None for s in summaries):
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    marker="o",
+                    ls="",
+                    ms=size,
+                    mfc="none",
+                    mec="0.6",
+                    label="not simulated yet",
+                )
+            )
+        fig.legend(
+            handles=handles, loc="outside lower center", ncols=min(len(handles), 3), frameon=False
+        )
     return fig
