@@ -163,6 +163,7 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
     (report / "animations").mkdir(parents=True)
     (report / "index.html").write_text("<html></html>")
     (report / "animations" / "a.gif").write_bytes(b"GIF89a")
+    (report / ".snakemake_timestamp").write_bytes(b"")  # hidden: not logged
     log = tmp_path / "snakemake.log"
     log.write_text("done")
     logged = tracking.end_parent_run(parent, "FINISHED", [report, log, tmp_path / "absent.log"])
@@ -176,6 +177,9 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
     assert [a.path for a in mlflow_store.list_artifacts(parent, "report")] == [
         "report/animations",
         "report/index.html",
+    ]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report/animations")] == [
+        "report/animations/a.gif"
     ]
     exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {

@@ -344,15 +344,26 @@ def end_parent_run(
             client.log_artifact(run_id, str(path))
             logged.append(path)
         elif path.is_dir() and _newest(path) >= started:
-            client.log_artifacts(run_id, str(path), artifact_path=path.name)
+            for file in _files(path):  # under the folder's name, as they lie in it
+                where = file.parent.relative_to(path.parent).as_posix()
+                client.log_artifact(run_id, str(file), artifact_path=where)
             logged.append(path)
     client.set_terminated(run_id, status=status)
     return logged
 
 
+def _files(folder: Path) -> list[Path]:
+    """The files under ``folder``, without hidden ones (Snakemake's ``.snakemake_timestamp``)."""
+    return sorted(
+        f
+        for f in folder.rglob("*")
+        if f.is_file() and not any(p.startswith(".") for p in f.relative_to(folder).parts)
+    )
+
+
 def _newest(folder: Path) -> float:
     """The latest modification time (s since the epoch) of the files under ``folder``, 0 if none."""
-    return max((f.stat().st_mtime for f in folder.rglob("*") if f.is_file()), default=0.0)
+    return max((f.stat().st_mtime for f in _files(folder)), default=0.0)
 
 
 def _remove_if_empty(folder: Path) -> None:

@@ -33,8 +33,7 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
     name = "reduced_replay_hill_speed~0.75_depth~0.1.gif"
     assert f'<img src="animations/{name}"' in text
     assert (tmp_path / "report" / "animations" / name).read_bytes() == b"GIF89a"
-    verdict = "<p>replay fields with the linear-loop force model reproduce NDEM's bed height"
-    assert verdict in text.replace("&#x27;", "'")
+    assert "<p>replay fields and the linear-loop force model: height accuracy 90.0 %" in text
 
 
 def test_the_verdict_is_the_learned_models_then_the_replay_control(tmp_path):
@@ -42,13 +41,14 @@ def test_the_verdict_is_the_learned_models_then_the_replay_control(tmp_path):
     assert reduced.verdict(report_context(cfg, tmp_path)) is None
     reduced_json(tmp_path, "replay")
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "replay fields with the linear-loop force model reproduce NDEM's bed height to 90.0 % and "
-        "the draft force to 30.0 % rel. RMSE (mean of 1 held-out point), its loop 62.0× faster "
-        "than NDEM's; every target met on 0 of 1 (missed: force_rmse)."
+        "replay fields and the linear-loop force model: height accuracy 90.0 %, draft force rel. "
+        "RMSE 30.0 %, loop 62.0× as fast as NDEM's (mean of 1 held-out point); every target met "
+        "on 0 of 1 (missed: force_rmse)."
     )
     reduced_json(tmp_path, "ridge")
     verdict = reduced.verdict(report_context(cfg, tmp_path))
-    assert verdict.startswith("ridge fields with the linear-loop force model reproduce")
+    assert verdict.startswith("ridge fields and the linear-loop force model: height accuracy")
     assert verdict.endswith(
-        "replay (NDEM's own fields, the loop's own error): bed height 90.0 %, draft force 30.0 %."
+        "Control, replay (NDEM's own fields: the loop's own error): height accuracy 90.0 %, draft "
+        "force rel. RMSE 30.0 %."
     )

@@ -82,17 +82,16 @@ def verdict(ctx: Context) -> str | None:
     if not scores:
         return None
     ranked = sorted(scores, key=lambda m: float(np.mean(list(scores[m].values()))))
-    per_group = lambda m: " and ".join(  # noqa: E731
-        f"{html.percent(v)} ({g})" for g, v in scores[m].items()
+    best = scores[ranked[0]]
+    text = f"{ranked[0]} predicts the draft force best: force_x relative RMSE " + " and ".join(
+        f"{html.percent(v)} on the {g}" for g, v in best.items()
     )
-    text = (
-        f"{ranked[0]} predicts the draft force best: force_x relative RMSE {per_group(ranked[0])}"
-    )
+    text += " points"
     if len(ranked) > 1:
-        text += f" (next: {ranked[1]}, {per_group(ranked[1])})"
-    return (
-        text + f"; the thesis CNN reached ≈ {html.percent(THESIS_ERROR, 0)} on its training data."
-    )
+        text += f"; next best {ranked[1]}, " + " and ".join(
+            html.percent(v) for v in scores[ranked[1]].values()
+        )
+    return text + f"; the thesis CNN reached {html.percent(THESIS_ERROR, 0)} on its training data."
 
 
 def _compare(results: dict[str, dict[str, Any]]) -> Comparison:

@@ -71,23 +71,18 @@ def _model_verdict(model: str, doc: dict[str, Any]) -> str:
     n = len(points)
     forces = ", ".join(sorted({str(p.get("force_model")) for p in points}))
     figures = [
-        f"bed height to {html.percent(_mean(points, 'height_accuracy'))}",
-        f"the draft force to {html.percent(_mean(points, 'force_x_rel_rmse'))} rel. RMSE",
+        f"height accuracy {html.percent(_mean(points, 'height_accuracy'))}",
+        f"draft force rel. RMSE {html.percent(_mean(points, 'force_x_rel_rmse'))}",
     ]
-    loop, job = _mean(points, "loop_speedup"), _mean(points, "job_speedup")
-    speed = [f"its loop {loop:.1f}×" if loop is not None else ""]
-    speed += [f"its job {job:.1f}×" if job is not None else ""]
-    speed = [x for x in speed if x]
+    for key, name in (("loop_speedup", "loop"), ("job_speedup", "job")):
+        if (value := _mean(points, key)) is not None:
+            figures.append(f"{name} {value:.1f}× as fast as NDEM's")
     met = sum(all(ok is not False for ok in p["targets_met"].values()) for p in points)
     missed = sorted({k for p in points for k, ok in p["targets_met"].items() if ok is False})
     text = (
-        f"{model} fields with the {forces} force model reproduce NDEM's "
-        + " and ".join(figures)
-        + f" (mean of {n} held-out point{'s' if n != 1 else ''})"
+        f"{model} fields and the {forces} force model: {', '.join(figures)} (mean of {n} "
+        f"held-out point{'s' if n != 1 else ''}); every target met on {met} of {n}"
     )
-    if speed:
-        text += ", " + " and ".join(speed) + " faster than NDEM's"
-    text += f"; every target met on {met} of {n}"
     return text + (f" (missed: {', '.join(missed)})." if missed else ".")
 
 
@@ -99,8 +94,8 @@ def verdict(ctx: Context) -> str | None:
     if REPLAY in docs:
         points = docs[REPLAY]["points"]
         control = (
-            f"replay (NDEM's own fields, the loop's own error): bed height "
-            f"{html.percent(_mean(points, 'height_accuracy'))}, draft force "
+            f"Control, replay (NDEM's own fields: the loop's own error): height accuracy "
+            f"{html.percent(_mean(points, 'height_accuracy'))}, draft force rel. RMSE "
             f"{html.percent(_mean(points, 'force_x_rel_rmse'))}."
         )
         learned.append(control if learned else _model_verdict(REPLAY, docs[REPLAY]))

@@ -13,6 +13,8 @@ from dozerlab.sweep import fmt_number
 
 TITLE = "Runs"
 ORDER = 40
+#: The end of a run, as a fraction of its time, where its largest force should not be.
+LATE = 0.1
 
 
 def verdict(ctx: Context) -> str | None:
@@ -22,12 +24,20 @@ def verdict(ctx: Context) -> str | None:
         return None
     top = max(peaks, key=lambda s: s.peak_force or 0.0)
     p = top.point
-    return (
-        f"{len(peaks)} runs, each with its blade trajectory, a mid-run field slice and the blade "
+    text = (
+        f"{len(peaks)} run{'s' if len(peaks) != 1 else ''}, each with its blade trajectory, a mid-run field slice and the blade "
         f"force over time; the sweep's largest |F|, {(top.peak_force or 0.0) / 1000:.2f} kN, is "
         f"that of {p.scenario} {fmt_number(p.speed)} m/s, {fmt_number(p.depth)} m at "
-        f"t = {top.peak_time:.2f} s of {top.simulated:.2f} s."
+        f"t = {top.peak_time:.2f} s of {top.simulated:.2f} s"
     )
+    # a run whose force peaks at its end pushed its pile against the far wall (quick.yaml)
+    late = [s for s in peaks if (s.peak_time or 0.0) > (1 - LATE) * (s.simulated or 0.0)]
+    if late:
+        text += (
+            f"; {len(late)} of {len(peaks)} runs peak in their last {html.percent(LATE, 0)}, where the pile "
+            "ahead of the blade may press against the bed's far wall (trajectory.end_margin)"
+        )
+    return text + "."
 
 
 def render(ctx: Context) -> str | None:
