@@ -33,15 +33,22 @@ def test_report_embeds_everything_with_units(tmp_path):
     ids = re.findall(r'<section id="([a-z]+)">', text)
     assert ids == ["sweep", "beds", "runs", "models"]
     # the sweep table: units in the headings, the simulation's own stepping time
-    for heading in ("speed (m/s)", "depth (m)", "stepping wall time (s)", "mean |F| (kN)"):
+    for heading in (
+        "speed (m/s)",
+        "depth (m)",
+        "stepping wall time (s)",
+        "mean |F| (kN)",
+        "peak at (s)",
+    ):
         assert f"<th>{heading}</th>" in text
     first = table_cells(text, "sweep", 0)
     assert first == [
-        "hill", "training", "0.5", "0.1", "321", "12", "0.06", "12.5", "208 ×", "1.21", "2.02"
+        "hill", "training", "0.5", "0.1", "321", "12", "0.06", "12.5", "208 ×", "1.21", "2.02",
+        "0.06",
     ]  # fmt: skip
     assert table_cells(text, "sweep", 1)[7:9] == ["–", "–"]  # a store without wall_time_s
     extra = table_cells(text, "sweep", 3)
-    assert extra[:2] == ["hill", "held out, extrapolation"] and extra[4:] == ["–"] * 7
+    assert extra[:2] == ["hill", "held out, extrapolation"] and extra[4:] == ["–"] * 8
     assert "Not built yet: hill speed~2.0_depth~0.1." in text
     # the models: a chart and a table of percentages (unit in the heading, 12.5 in the cell)
     assert "<th>force_x rel. RMSE (%)</th>" in text and "<td>12.5</td>" in text

@@ -45,6 +45,7 @@ COLUMNS = [
     html.Column("wall ÷ simulated time", "", lambda v: "–" if v is None else f"{v:.0f} ×"),
     html.Column("mean |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
     html.Column("peak |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
+    html.Column("peak at", "s", lambda v: "–" if v is None else f"{v:.2f}"),
 ]
 
 
@@ -62,6 +63,7 @@ def _row(s: PointSummary) -> list[Any]:
         s.slowdown,
         _kn(s.mean_force),
         _kn(s.peak_force),
+        s.peak_time,
     ]
 
 
@@ -120,7 +122,8 @@ def render(ctx: Context) -> str | None:
             "Stepping wall time: the simulation's stepping loop (solver, field sampling, store "
             "writes) on one job's threads, without loading the bed or Snakemake's overhead; – for "
             "stores written before it was recorded. Forces are the particles' contact forces on "
-            "the blade.",
+            "the blade; peak at: when in the run |F| was largest (in a run's last steps it can "
+            "be the pile pressed against the bed's far wall; Runs counts such runs).",
             "caption",
         ),
     ]
