@@ -161,13 +161,18 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path, 
             raise RuntimeError("boom")
     finally:
         del os.environ[tracking.PARENT_ENV]
-    report = tmp_path / "index.html"
-    report.write_text("<html></html>")
+    report = tmp_path / "report"  # the report's folder: the page and its animations
+    (report / "animations").mkdir(parents=True)
+    (report / "index.html").write_text("<html></html>")
+    (report / "animations" / "a.gif").write_bytes(b"GIF89a")
+    (report / ".snakemake_timestamp").write_bytes(b"")  # hidden: not logged
+    log = tmp_path / "snakemake.log"
+    log.write_text("done")
     headline = {"force_x_rel_rmse/best": 0.25}
     logged = tracking.end_parent_run(
-        parent, "FINISHED", [report, tmp_path / "absent.log"], headline
+        parent, "FINISHED", [report, log, tmp_path / "absent.log"], headline
     )
-    assert logged == [report]
+    assert logged == [report, log]
     # the count of every job run under the parent, not only those ingested at its end
     said = capsys.readouterr().err
     assert f"MLflow: 2 job runs under workflow run {parent}" in said
@@ -180,7 +185,14 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path, 
     assert run.data.tags["role"] == "parent"
     assert run.data.metrics["force_x_rel_rmse/best"] == 0.25
     assert run.data.metrics["wall_seconds"] >= 0
-    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
+    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["report", "snakemake.log"]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report")] == [
+        "report/animations",
+        "report/index.html",
+    ]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report/animations")] == [
+        "report/animations/a.gif"
+    ]
     exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {
         r.info.run_name: r

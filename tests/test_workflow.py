@@ -264,7 +264,7 @@ def test_report_has_table_figures_and_models(quick):
     assert '<div class="note">Smoke test' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
-        assert f"{point.scenario} {point.name}: blade force (N) and torque" in text
+        assert f"{point.scenario} {point.name}: blade force (kN) and torque" in text
         # the sweep table's wall time is the simulation's own, recorded in its store
         assert xr.open_zarr(P.field_path(quick / "results", point)).attrs["wall_time_s"] > 0
     # sweep map, bed, per point trajectory, slice and force, error chart, per model parity

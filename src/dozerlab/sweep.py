@@ -158,6 +158,7 @@ PATHS = {
     "dynamics_validation": "dynamics/{model}.json",
     "dynamics_plots": "dynamics/plots/{model}",
     "report": "report/index.html",
+    "report_dir": "report",
 }
 #: The workflow's results directory (relative to its working directory).
 RESULTS = "results"

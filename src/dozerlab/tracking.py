@@ -379,8 +379,9 @@ def end_parent_run(
     artifacts: Sequence[str | Path] = (),
     metrics: Mapping[str, float] | None = None,
 ) -> list[Path]:
-    """End the parent run with ``status``, logging each of ``artifacts`` written since it began,
-    ``metrics`` (the sweep's headline figures) and ``wall_seconds`` (since the run began).
+    """End the parent run with ``status``, logging each of ``artifacts`` written since it began
+    (a file, or a folder, the report's, whose files are logged under its name), ``metrics``
+    (the sweep's headline figures) and ``wall_seconds`` (since the run began).
 
     Paths that do not exist, or that are older than the run (a report this invocation did not
     rebuild), are skipped. Prints the paths logged, how many job runs the parent holds and the
@@ -402,6 +403,12 @@ def end_parent_run(
     for path in map(Path, artifacts):
         if path.is_file() and path.stat().st_mtime >= started:
             client.log_artifact(run_id, str(path))
+            logged.append(path)
+            print(f"MLflow: logged {path} on the workflow run", file=sys.stderr)
+        elif path.is_dir() and _newest(path) >= started:
+            for file in _files(path):  # under the folder's name, as they lie in it
+                where = file.parent.relative_to(path.parent).as_posix()
+                client.log_artifact(run_id, str(file), artifact_path=where)
             logged.append(path)
             print(f"MLflow: logged {path} on the workflow run", file=sys.stderr)
     now = int(time.time() * 1000)
@@ -427,6 +434,25 @@ def registered_summary(client: Any, parent: str) -> str:
     versions = client.search_model_versions(f"tags.`dozerlab.parent_run_id` = '{parent}'")
     names = sorted(f"{v.name} v{v.version}" for v in versions)
     return "models registered: " + (", ".join(names) if names else "none")
+
+
+def _files(folder: Path) -> list[Path]:
+    """The files under ``folder``, without hidden ones (Snakemake's ``.snakemake_timestamp``)."""
+    return sorted(
+        f
+        for f in folder.rglob("*")
+        if f.is_file() and not any(p.startswith(".") for p in f.relative_to(folder).parts)
+    )
+
+
+def _newest(folder: Path) -> float:
+    """The latest modification time (s since the epoch) of the files under ``folder``, 0 if none."""
+    return max((f.stat().st_mtime for f in _files(folder)), default=0.0)
+
+
+def _remove_if_empty(folder: Path) -> None:
+    if folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
 
 
 def ingest_ended(client: Any) -> None:

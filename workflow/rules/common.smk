@@ -186,7 +186,7 @@ def all_targets():
     targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
     targets += reduced_comparisons()
-    targets.append(P.pattern("report"))
+    targets.append(P.pattern("report_dir"))
     return targets
 
 
@@ -277,8 +277,9 @@ def stop_ingest():
 
 
 def end_parent_run(status, log):
-    """End the parent run with ``status``, attaching the report and Snakemake's log if new and
-    the sweep's headline figures (dozerlab.headline) as its metrics.
+    """End the parent run with ``status``, attaching the report (its folder: the page and its
+    animations) and Snakemake's log if new, and the sweep's headline figures (dozerlab.headline)
+    as its metrics.
 
     Snakemake 9 passes ``log`` as the list of its log files (a path in older versions).
     """
@@ -287,7 +288,7 @@ def end_parent_run(status, log):
         return
     stop_ingest()
     logs = [log] if isinstance(log, (str, os.PathLike)) else list(log or [])
-    artifacts = [P.pattern("report")] + [str(p) for p in logs]
+    artifacts = [P.pattern("report_dir")] + [str(p) for p in logs]
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]

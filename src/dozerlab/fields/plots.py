@@ -108,12 +108,13 @@ def plot_slice(ds: xr.Dataset, step: int, path: str | Path) -> Path:
 
 
 def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
-    """Write a PNG of the blade force (N) and torque about the tip (N·m) over time."""
+    """Write a PNG of the blade force (kN) and torque about the tip (kN·m) over time (the
+    store's N and N·m, in the report's units)."""
     fig = Figure(figsize=(9, 6), layout="constrained")
     ax_f, ax_t = fig.subplots(2, 1, sharex=True)
     t = ds["time"].values
-    for ax, name, unit in ((ax_f, "force", "N"), (ax_t, "torque", "N·m")):
-        v = ds[name].values
+    for ax, name, unit in ((ax_f, "force", "kN"), (ax_t, "torque", "kN·m")):
+        v = ds[name].values / 1000.0
         for a, c in enumerate("xyz"):
             ax.plot(t, v[:, a], lw=1, label=f"{name} {c}")
         ax.plot(t, np.linalg.norm(v, axis=1), "k", lw=1.2, label=f"|{name}|")

@@ -131,7 +131,7 @@ def _train(args: argparse.Namespace) -> int:
     result = job(args.run)(args.model, args.train, config, args.out, device=args.device, **extra)
     prefix, loss, samples = args.report
     print(
-        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch} "
+        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch + 1} "
         f"({result.samples['train']} training {samples}, {result.seconds:.1f} s) -> {args.out}"
     )
     return 0
