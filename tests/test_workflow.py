@@ -446,10 +446,14 @@ def test_quick_config_sets_every_field_the_default_config_sets():
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\.0'.*allowed: >= 1"),
+        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\[0\]'.*allowed: >= 1"),
         ("sweep: {speeds: [1.0, 1.0, 1]}\n", r"'sweep\.speeds'.*allowed: each value once"),
-        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\.0'.*allowed: <= 20"),
-        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\.0'.*deeper than the hill bed"),
+        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\[0\]'.*allowed: <= 20"),
+        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\[0\]'.*deeper than the hill bed"),
+        ("sweep: {depths: [1.0e-250]}\n", r"bad\.yaml.*'sweep\.depths\[0\]'.*allowed: >= 0\.001"),
+        ("solver: {dt: .nan}\n", r"bad\.yaml.*'solver\.dt': nan is not a finite number"),
+        ("learn: {epochs: 3.0}\n", r"'learn\.epochs': 3\.0 is not of type 'integer'"),
+        ("seed: 1\nseed: 2\n", r"bad\.yaml gives the key 'seed' twice in one mapping \(lines 1 and 2"),
         ("sampling: {bins: [1024, 1024, 1024]}\n", r"sampling\.bins.*GiB of memory"),
     ],
 )

@@ -13,11 +13,20 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 
 from dozerlab import cluster, runtime, spool, tracking
-from dozerlab.config import load_config, schema
+from dozerlab.config import load_config, read_yaml, schema
 from dozerlab import sweep as P
 
-# Validate before any job runs: a bad value stops here with its field name and allowed range.
-config.update(load_config(config))
+# Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
+# here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
+# of a key given twice, so each file is read again with ours, which refuses it.
+for _path in workflow.configfiles:
+    if Path(_path).is_file():  # the Snakefile's default, absent in a bare workdir, is skipped
+        read_yaml(_path)
+try:
+    config.update(load_config(config))
+except runtime.ConfigError as _exc:
+    _files = " + ".join(map(str, workflow.configfiles)) or "the defaults"
+    raise runtime.ConfigError(f"configuration {_files}: {_exc}") from None
 POINTS = P.sweep_points(config)
 HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
 RESULTS = P.RESULTS
