@@ -108,7 +108,9 @@ def test_a_job_given_the_blade_but_not_the_bed_hears_nothing_of_the_default_beds
     ],
 )
 def test_duplicates_and_big_numbers_name_field_and_range(doc, field, allowed):
-    with pytest.raises(ConfigError, match=rf"config field '{re.escape(field)}'.*allowed: {allowed}"):
+    with pytest.raises(
+        ConfigError, match=rf"config field '{re.escape(field)}'.*allowed: {allowed}"
+    ):
         load_config(doc)
 
 
@@ -187,7 +189,10 @@ def test_config_command_names_bad_yaml_and_leaks_without_traceback(tmp_path, cap
     ("doc", "field"),
     [
         ({"solver": {"dt": float("nan")}}, "solver.dt"),
-        ({"reduced": {"projection": {"relaxation": float("nan")}}}, "reduced.projection.relaxation"),
+        (
+            {"reduced": {"projection": {"relaxation": float("nan")}}},
+            "reduced.projection.relaxation",
+        ),
         ({"learn": {"ridge_alpha": float("inf")}}, "learn.ridge_alpha"),
         ({"bed": {"settle_kinetic_energy": float("inf")}}, "bed.settle_kinetic_energy"),
         ({"solver": {"gravity": [0.0, 0.0, float("-inf")]}}, "solver.gravity[2]"),
@@ -228,7 +233,14 @@ def test_integers_seed_speeds_and_depths_are_bounded(doc, field, allowed):
 
 
 def test_the_bounds_and_the_whole_numbers_that_remain_valid():
-    cfg = load_config({"seed": 2**32 - 1, "learn": {"epochs": 3}, "sweep": {"speeds": [0.01, 0.5], "depths": [0.05]}, "bed": {"length": 1.0}})
+    cfg = load_config(
+        {
+            "seed": 2**32 - 1,
+            "learn": {"epochs": 3},
+            "sweep": {"speeds": [0.01, 0.5], "depths": [0.05]},
+            "bed": {"length": 1.0},
+        }
+    )
     assert cfg["seed"] == 2**32 - 1 and cfg["learn"]["epochs"] == 3
 
 
@@ -275,7 +287,9 @@ def test_check_value_gives_a_flag_the_fields_bounds():
     from dozerlab.config import check_value
 
     check_value(("sweep", "speeds", 0), 0.5)
-    with pytest.raises(ConfigError, match=r"--speed: 0\.001 is less than the minimum of 0\.01 .*'sweep\.speeds'"):
+    with pytest.raises(
+        ConfigError, match=r"--speed: 0\.001 is less than the minimum of 0\.01 .*'sweep\.speeds'"
+    ):
         check_value(("sweep", "speeds", 0), 0.001, "--speed")
     with pytest.raises(ConfigError, match="not a finite number"):
         check_value(("sweep", "depths", 0), float("nan"))

@@ -250,7 +250,9 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     errors = sorted(_Validator(schema()).iter_errors(doc), key=lambda e: list(e.absolute_path))
     # a non-finite number breaks its bounds too: say only that it is not finite
     infinite = {tuple(e.absolute_path) for e in errors if e.validator == "finite"}
-    errors = [e for e in errors if e.validator == "finite" or tuple(e.absolute_path) not in infinite]
+    errors = [
+        e for e in errors if e.validator == "finite" or tuple(e.absolute_path) not in infinite
+    ]
     if errors:
         lines = []
         for e in errors:
@@ -287,7 +289,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: dict[Any, int] = {}
         for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            key = self.construct_object(key_node, deep=deep)
             line = key_node.start_mark.line + 1
             if isinstance(key, Hashable) and key in seen:
                 raise _DuplicateKey(key, (seen[key], line))
@@ -315,7 +317,7 @@ def read_yaml(path: str | Path) -> Any:
     stream = io.StringIO(text)
     stream.name = str(path)  # PyYAML's messages name the stream
     try:
-        return yaml.load(stream, Loader=_UniqueKeyLoader)  # noqa: S506 (a SafeLoader)
+        return yaml.load(stream, Loader=_UniqueKeyLoader)  # a SafeLoader
     except _DuplicateKey as exc:
         raise ConfigError(
             f"configuration file {path} gives the key '{exc.key}' twice in one mapping (lines "

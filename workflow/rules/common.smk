@@ -15,6 +15,7 @@ from snakemake.exceptions import WorkflowError
 from dozerlab import cluster, runtime, spool, tracking
 from dozerlab.config import load_config, read_yaml, schema
 from dozerlab import sweep as P
+from dozerlab.reduce import LOOP_FIELDS
 
 # Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
 # here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
@@ -54,16 +55,27 @@ wildcard_constraints:
     dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
-def config_json(*sections, scenario=None):
+def config_json(*sections, scenario=None, fields=None):
     """The named config sections as inline JSON for a command's --config (a rule's params).
 
     A rule reruns when its params change, so each rule passes only what its command reads;
-    with ``scenario``, the ``scenarios`` section holds only that scenario's shape.
+    with ``scenario``, the ``scenarios`` section holds only that scenario's shape; ``fields``
+    maps a section to the only fields of it the command reads.
     """
     doc = {name: config[name] for name in sections}
     if scenario is not None and "scenarios" in doc:
         doc["scenarios"] = {scenario: config["scenarios"][scenario]}
+    for name, keep in (fields or {}).items():
+        doc[name] = {k: v for k, v in doc[name].items() if k in keep}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def reduce_config_json():
+    """What a reduce job reads: the sections of the run and, of the reduced section, the loop's
+    settings (dozerlab.reduce.LOOP_FIELDS); not the targets, which only the comparison and the
+    report read."""
+    sections = ("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow")
+    return config_json(*sections, fields={"reduced": LOOP_FIELDS})
 
 
 def canonical(wildcards):

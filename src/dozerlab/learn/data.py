@@ -184,11 +184,11 @@ def check_distinct(stores: list[StoreData]) -> None:
     point given twice would count twice in training and in every mean over points."""
     seen: dict[Any, StoreData] = {}
     for s in stores:
-        keys = [("point", point_key(s.point))] if point_key(s.point) is not None else []
-        if s.source:
-            keys.append(("file", str(Path(s.source).resolve())))
+        keys: list[tuple[str, Any]] = [("file", str(Path(s.source).resolve()))] if s.source else []
+        if (point := point_key(s.point)) is not None:
+            keys.append(("point", point))
         for key in keys:
-            if key[1] is not None and key in seen:
+            if key in seen:
                 first = seen[key]
                 why = "the same file" if key[0] == "file" else f"the same sweep point ({s.name})"
                 raise DozerlabError(

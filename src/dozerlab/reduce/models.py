@@ -122,7 +122,10 @@ class PyfuncFieldModel:
 
     def check_run(self, run: RunFrame) -> None:
         _check_frame(
-            f"dynamics model {self.name}", self.module.grid, getattr(self.module, "bin_size", None), run
+            f"dynamics model {self.name}",
+            self.module.grid,
+            getattr(self.module, "bin_size", None),
+            run,
         )
         self.grid = run.bins
 

@@ -80,7 +80,11 @@ def reduce_run(
         grid.bins,
         grid.bin_size,
         dt * every,
-        {"scenario": scenario or bed.scenario, "speed": speed, "depth": depth},
+        {
+            "scenario": scenario or bed.scenario,
+            "speed": speed if speed is not None else round(traj.speed, 6),
+            "depth": depth,
+        },
     )
     field_model.check_run(frame)
     force_model.check_run(frame)
