@@ -63,3 +63,20 @@ def test_threads_outside_the_configs_bounds_are_refused_before_any_work(
     assert "argument --threads:" in err
     assert "config field 'threads.train'" in err or "is not an integer" in err
     assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("device", ["cuda", "cuda:7", "gpu7", "meta"])
+def test_a_device_this_machine_lacks_is_one_line_before_any_work(
+    store_files, tmp_path, capsys, device
+):
+    import torch
+
+    if device.startswith("cuda") and torch.cuda.device_count() > 7:
+        pytest.skip("this machine has the device")
+    out = tmp_path / "m"
+    argv = ["train", "--model", "linear", "--train", str(store_files["train"][0])]
+    config = '{"mlflow": {"enabled": false}}'
+    assert main([*argv, "--config", config, "--out", str(out), "--device", device]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"dozerlab train: error: --device '{device}'") and err.count("\n") == 1
+    assert not out.exists()

@@ -14,6 +14,7 @@ import numpy as np
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
 from dozerlab.learn.data import StoreData, check_grid, load_store, point_key, with_loop_fields
+from dozerlab.learn.fitting import device_for
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.train import EpochCallback, TrainResult, train_model
@@ -127,6 +128,7 @@ def train_job(
     the workflow's rule ``train_loop_force``.
     """
     check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
+    device_for(device)  # and a device this machine lacks
     stores = [load_store(p) for p in train]
     rule, tags = family.rule, {"model": kind}
     if loop_fields:
