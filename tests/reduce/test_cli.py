@@ -66,6 +66,8 @@ def test_reduce_points_reads_and_writes_the_workflows_paths(ndem_run, tmp_path, 
     ]
     assert main([*argv, "hill/speed~0.5_depth~fast"]) == 2
     assert "is not named speed~{speed}_depth~{depth}" in capsys.readouterr().err
+    assert main([*argv, "hill/speed~0.5_depth~0.06", "hill/speed~0.5_depth~0.06"]) == 2
+    assert "are one point; give it once" in capsys.readouterr().err
     assert not (results / "reduced").exists()
     assert main([*argv, "hill/speed~0.5_depth~0.06"]) == 0
     assert "reduced run hill/speed~0.5_depth~0.06:" in capsys.readouterr().out
