@@ -14,7 +14,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from dozerlab import tracking
-from dozerlab.runtime import WORKFLOW_HOST_ENV, WORKFLOW_PID_ENV
+from dozerlab.runtime import WORKFLOW_HOST_ENV, WORKFLOW_PID_ENV, DozerlabError
 
 JOB = """
 import sys, time
@@ -291,3 +291,29 @@ def test_the_parent_run_of_a_killed_snakemake_is_closed_as_killed(
         for p in (killed, running):
             p.kill()
             p.wait()
+
+
+def test_a_garbage_tracking_store_is_one_line_naming_it(tmp_path, monkeypatch, capsys):
+    """A local mlflow.db that is not SQLite gave a sqlalchemy traceback."""
+    from dozerlab.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
+    monkeypatch.setenv(tracking.ENABLED_ENV, "1")
+    db = tmp_path / "mlflow.db"
+    db.write_bytes(b"\x7fELF\x02\x01\x01" + bytes(range(256)) * 8)
+    before = db.read_bytes()
+    assert main(["mlflow-start", "--config", "{}"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "MLflow tracking store mlflow.db is not an SQLite database" in err
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{db}")
+    with (
+        pytest.raises(DozerlabError, match=f"store {db} is not an SQLite database"),
+        tracking.tracked_run("job", rule="bed"),
+    ):
+        pass
+    assert db.read_bytes() == before  # left as it was
+    db.write_bytes(b"")  # an empty file is a store MLflow creates its tables in
+    assert tracking.tracking_uri() == f"sqlite:///{db}"

@@ -16,6 +16,7 @@ command that fails leaves nothing behind. Names that become parts of paths pass
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import errno
 import gc
@@ -159,6 +160,47 @@ def die_with_workflow(poll_s: float = 1.0) -> bool:
     signal.signal(signal.SIGTERM, stop)
     threading.Thread(target=watch, name="dozerlab-workflow-watch", daemon=True).start()
     return True
+
+
+def _group_descendants(pid: int) -> list[int]:
+    """The descendants of ``pid`` in this process's process group, parents first (Linux
+    ``/proc``; none where it is missing)."""
+    children: dict[int, list[int]] = {}
+    group = os.getpgrp()
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        ppid, pgrp = (int(f) for f in stat[stat.rindex(")") + 2 :].split()[1:3])
+        if pgrp == group:
+            children.setdefault(ppid, []).append(int(entry.name))
+    found, todo = [], list(children.get(pid, []))
+    while todo:
+        found.append(child := todo.pop(0))
+        todo += children.get(child, [])
+    return found
+
+
+def sigterm_as_ctrl_c() -> None:
+    """Make SIGTERM to this process (the workflow's Snakemake) do what Ctrl-C does.
+
+    Snakemake 9 takes SIGTERM as "finish the running jobs, then exit", while Ctrl-C (SIGINT to
+    the terminal's whole process group) stops the jobs at once, removes their outputs and ends
+    the parent MLflow run FAILED. From here on SIGTERM sends SIGINT to this process's children
+    in its process group (the local jobs, as Ctrl-C would reach them; a job of its own session,
+    like the MLflow follower, is left to the hooks) and raises KeyboardInterrupt here, where
+    Snakemake handles it as Ctrl-C (a remote executor then cancels its jobs). Call from the
+    main thread, after Snakemake installed its own handler (in ``onstart``).
+    """
+
+    def interrupt(signum: int, frame: object) -> None:
+        for pid in _group_descendants(os.getpid()):
+            with contextlib.suppress(ProcessLookupError):  # ended meanwhile
+                os.kill(pid, signal.SIGINT)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
 
 
 #: The marker dozerlab writes into outputs that have room for one (PNG text, GIF comment, HTML).

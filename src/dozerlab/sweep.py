@@ -115,7 +115,7 @@ def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
             point = SweepPoint(item["scenario"], float(item["speed"]), float(item["depth"]), role)
             if point.key in seen:
                 raise ConfigError(
-                    f"config field 'sweep.{role}.{i}': {point.scenario} {point.name} is already in the "
+                    f"config field 'sweep.{role}[{i}]': {point.scenario} {point.name} is already in the "
                     f"{seen[point.key]} (allowed: a point outside the training grid, listed once)"
                 )
             seen[point.key] = f"sweep.{role}"

@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from dozerlab import spool
-from dozerlab.runtime import process_token, workflow_process
+from dozerlab.runtime import DozerlabError, process_token, workflow_process
 from dozerlab.spool import spool_root, spooled_run
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
@@ -118,6 +118,38 @@ def _store_lock(uri: str) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
+#: The first bytes of every SQLite database file.
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def tracking_uri() -> str:
+    """The tracking store's URI (``MLFLOW_TRACKING_URI``, default :data:`DEFAULT_URI`).
+
+    A local SQLite store that exists but is not an SQLite database (a garbage or truncated
+    ``mlflow.db``) is refused with :class:`~dozerlab.runtime.DozerlabError` naming the file,
+    before MLflow opens it and fails with a database traceback.
+    """
+    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    prefix = "sqlite:///"
+    if uri.startswith(prefix):
+        path = Path(uri[len(prefix) :])
+        try:
+            with open(path, "rb") as db:
+                head = db.read(len(_SQLITE_MAGIC))
+        except FileNotFoundError:
+            return uri  # MLflow creates it
+        except OSError as exc:
+            raise DozerlabError(
+                f"MLflow tracking store {path} cannot be read: {exc.strerror}"
+            ) from None
+        if head and head != _SQLITE_MAGIC:
+            raise DozerlabError(
+                f"MLflow tracking store {path} is not an SQLite database (it does not start with "
+                "'SQLite format 3'); move it away, or set MLFLOW_TRACKING_URI to another store"
+            )
+    return uri
+
+
 def wait_limit() -> float:
     """Seconds to wait for a tracking server: ``DOZERLAB_MLFLOW_WAIT``, 0–86400, default 120."""
     raw = os.environ.get(WAIT_ENV, "")
@@ -172,7 +204,7 @@ def configure(experiment: str = "dozerlab", parent: str | None = None) -> str:
     """
     import mlflow
 
-    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    uri = tracking_uri()
     wait_for_server(uri, wait_limit())
     mlflow.set_tracking_uri(uri)
     with _store_lock(uri):
@@ -392,7 +424,7 @@ def end_parent_run(
     from mlflow import MlflowClient
     from mlflow.entities import Metric
 
-    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    uri = tracking_uri()
     client = MlflowClient(tracking_uri=uri)
     run = client.get_run(run_id)
     started = run.info.start_time / 1000.0
@@ -482,7 +514,7 @@ def _spool_client() -> tuple[Path, Any]:
     root = spool_root()
     if root is None:
         raise ValueError(f"{spool.SPOOL_ENV} is not set: no spooled job runs to log")
-    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    uri = tracking_uri()
     wait_for_server(uri, wait_limit())
     return root, MlflowClient(tracking_uri=uri)
 

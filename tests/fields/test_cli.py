@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from dozerlab.cli import main
@@ -66,5 +67,7 @@ def test_simulate_with_a_missing_bed_names_it_and_writes_nothing(tmp_path, capsy
 
 def test_simulate_refuses_less_than_one_thread(tmp_path, capsys):
     argv = ["simulate", "--bed", "b.npz", "--trajectory", "t.csv", "--out", "f.zarr"]
-    assert main([*argv, "--threads", "0"]) == 2
-    assert "threads must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # argparse, with the config's bounds
+        main([*argv, "--threads", "0"])
+    assert exit_.value.code == 2
+    assert "argument --threads: 0 is less than the minimum of 1" in capsys.readouterr().err

@@ -15,8 +15,9 @@ from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger
 
 from dozerlab import cluster, console, headline, runtime, spool, tracking
-from dozerlab.config import load_config, schema
+from dozerlab.config import load_config, read_yaml, schema
 from dozerlab import sweep as P
+from dozerlab.reduce import LOOP_FIELDS
 
 STARTED = time.time()
 # One line per job start and end on the console (dozerlab.console); Snakemake's log under
@@ -24,8 +25,17 @@ STARTED = time.time()
 # keep Snakemake's.
 console.install(logger)
 
-# Validate before any job runs: a bad value stops here with its field name and allowed range.
-config.update(load_config(config))
+# Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
+# here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
+# of a key given twice, so each file is read again with ours, which refuses it.
+for _path in workflow.configfiles:
+    if Path(_path).is_file():  # the Snakefile's default, absent in a bare workdir, is skipped
+        read_yaml(_path)
+try:
+    config.update(load_config(config))
+except runtime.ConfigError as _exc:
+    _files = " + ".join(map(str, workflow.configfiles)) or "the defaults"
+    raise runtime.ConfigError(f"configuration {_files}: {_exc}") from None
 POINTS = P.sweep_points(config)
 HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
 RESULTS = P.RESULTS
@@ -53,16 +63,27 @@ wildcard_constraints:
     dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
-def config_json(*sections, scenario=None):
+def config_json(*sections, scenario=None, fields=None):
     """The named config sections as inline JSON for a command's --config (a rule's params).
 
     A rule reruns when its params change, so each rule passes only what its command reads;
-    with ``scenario``, the ``scenarios`` section holds only that scenario's shape.
+    with ``scenario``, the ``scenarios`` section holds only that scenario's shape; ``fields``
+    maps a section to the only fields of it the command reads.
     """
     doc = {name: config[name] for name in sections}
     if scenario is not None and "scenarios" in doc:
         doc["scenarios"] = {scenario: config["scenarios"][scenario]}
+    for name, keep in (fields or {}).items():
+        doc[name] = {k: v for k, v in doc[name].items() if k in keep}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def reduce_config_json():
+    """What a reduce job reads: the sections of the run and, of the reduced section, the loop's
+    settings (dozerlab.reduce.LOOP_FIELDS); not the targets, which only the comparison and the
+    report read."""
+    sections = ("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow")
+    return config_json(*sections, fields={"reduced": LOOP_FIELDS})
 
 
 def canonical(wildcards):

@@ -14,6 +14,7 @@ import numpy as np
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
 from dozerlab.learn.data import StoreData, check_grid, load_store, point_key, with_loop_fields
+from dozerlab.learn.fitting import device_for
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
 from dozerlab.learn.pyfunc import MODEL_DIR
@@ -143,6 +144,7 @@ def train_job(
     the workflow's rule ``train_loop_force``.
     """
     with job_outputs(("--out", out, family.output)):  # a wrong --out fails before training
+        device_for(device)  # and a device this machine lacks
         return _train(kind, train, config, out, device, progress, family, loop_fields)
 
 

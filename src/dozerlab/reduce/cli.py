@@ -126,6 +126,11 @@ def _reduce_points(args: argparse.Namespace) -> int:
             raise ValueError(f"--points {text!r} is not SCENARIO/speed~V_depth~D")
         check_name(parts[0], "--points scenario")
     points = [P.parse_point(text) for text in args.points]  # a misnamed one: ValueError, exit 2
+    seen: dict[tuple[str, str], str] = {}
+    for text, point in zip(args.points, points, strict=True):
+        if point.key in seen:  # one run would be written twice, and counted twice
+            raise ValueError(f"--points {seen[point.key]} and {text} are one point; give it once")
+        seen[point.key] = text
     config = configure(args)
     from dozerlab.reduce.jobs import reduce_points_job
 

@@ -64,6 +64,7 @@ def reduce_run(
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
     from dozerlab.fields.run import load_inputs, moved_bed, sample_row
+    from dozerlab.reduce.models import RunFrame
     from dozerlab.scenarios.blade import BladeGeometry, add_blade
     from dozerlab.scenarios.build import make_world
 
@@ -78,6 +79,20 @@ def reduce_run(
         raise DozerlabError(
             f"the trajectory has {rows} sampled rows, not more than the field model's history {hist}"
         )
+    frame = RunFrame(
+        str(trajectory_path),
+        rows,
+        grid.bins,
+        grid.bin_size,
+        dt * every,
+        {
+            "scenario": scenario or bed.scenario,
+            "speed": speed if speed is not None else round(traj.speed, 6),
+            "depth": depth,
+        },
+    )
+    field_model.check_run(frame)
+    force_model.check_run(frame)
     step_of = (np.arange(rows) + 1) * every  # solver steps done at each row
     blade_v = traj.velocity[step_of - 1].astype(np.float32)
     blade_v_ahead = np.vstack([blade_v, np.zeros((horizon, 3), np.float32)])

@@ -35,8 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bed", required=True, help="bed file written by 'dozerlab bed'")
     add_point(
         p,
-        "blade speed along the path in m/s (> 0)",
-        "cut depth in m (> 0, less than the bed's height)",
+        "blade speed along the path in m/s (0.01 to 20, the bounds of sweep.speeds)",
+        "cut depth in m (0.001 to 10, the bounds of sweep.depths, and less than the bed's height)",
         required=True,
     )
     add_config(p)

@@ -41,6 +41,11 @@ CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
 TRAJECTORY_FILE = OutputKind("a dozerlab trajectory CSV", first_line_is(",".join(CSV_COLUMNS)))
 
 
+#: The most steps a trajectory may have: 10^6 rows of blade motion, a run of hours of NDEM;
+#: a path walked at a crawl would otherwise grow without bound (1e-9 m/s: 4e11 rows).
+MAX_STEPS = 1_000_000
+
+
 def _empty() -> np.ndarray:
     return np.zeros(0)
 
@@ -215,6 +220,13 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
     ease = _smoothstep((path[:, 0] - tip0[0]) / (int(tcfg["approach_steps"]) * speed * dt))
     path[:, 1] = tip0[2] + ease * (path[:, 1] - tip0[2])
 
+    length = float(np.hypot(*np.diff(path, axis=0).T).sum())
+    if length > MAX_STEPS * speed * dt:
+        raise ValueError(
+            f"the {length:.3g} m path at {speed} m/s takes {length / (speed * dt):.3g} steps of "
+            f"solver.dt {dt} s, more than a run holds (allowed: at most {MAX_STEPS:.0e} steps; "
+            "raise the speed or solver.dt)"
+        )
     xz = walk_path(path, speed * dt)
     if len(xz) < 2:
         raise ValueError(
