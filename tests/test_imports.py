@@ -11,7 +11,17 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src"
 #: The layers in their order; every module of the package belongs to one of them.
 LAYERS = ("shared", "ndem", "scenarios", "fields", "learn", "reduce", "report", "cli")
-SHARED = {"__init__", "sweep", "config", "runtime", "tracking", "spool", "cluster", "cliargs"}
+SHARED = {
+    "__init__",
+    "sweep",
+    "config",
+    "runtime",
+    "tracking",
+    "spool",
+    "cluster",
+    "cliargs",
+    "integrity",
+}
 
 
 def _modules(src: Path) -> dict[str, Path]:

@@ -27,7 +27,6 @@ is sure to catch. The job that wrote it re-creates it with checksums.
 from __future__ import annotations
 
 import functools
-import hashlib
 import itertools
 import json
 import os
@@ -42,6 +41,7 @@ import numpy as np
 import zarr
 from numcodecs import blosc
 
+from dozerlab.integrity import sha256_json
 from dozerlab.runtime import thread_budget
 
 #: Index entry of an inner chunk that was never written (zarr v3 sharding spec): read as fill.
@@ -126,20 +126,14 @@ def read_metadata(file: Path) -> dict[str, Any]:
     return doc
 
 
-def _sha256(doc: Any) -> str:
-    """SHA-256 of a JSON document in canonical form (whitespace and key order do not count)."""
-    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 def metadata_digests(path: str | Path, arrays: list[str]) -> dict[str, str]:
     """The :data:`DIGEST_ATTR` value of the store at ``path``: the SHA-256 of each of ``arrays``'
     ``zarr.json`` and, under ``""``, of the group's attributes other than this one."""
     path = Path(path)
     attrs = dict(read_metadata(path / "zarr.json").get("attributes") or {})
     attrs.pop(DIGEST_ATTR, None)
-    digests = {"": _sha256(attrs)}
-    digests |= {name: _sha256(read_metadata(path / name / "zarr.json")) for name in arrays}
+    digests = {"": sha256_json(attrs)}
+    digests |= {name: sha256_json(read_metadata(path / name / "zarr.json")) for name in arrays}
     return digests
 
 
@@ -182,7 +176,7 @@ def check_metadata(path: str | Path) -> list[str]:
     consolidated = ((group.get("consolidated_metadata") or {}).get("metadata")) or {}
     for name, doc in consolidated.items():
         own = path / name / "zarr.json"
-        if name not in recorded or not own.is_file() or _sha256(doc) != recorded[name]:
+        if name not in recorded or not own.is_file() or sha256_json(doc) != recorded[name]:
             raise DamagedStoreError(
                 f"{path / 'zarr.json'} is damaged: its consolidated copy of array '{name}'s "
                 f"metadata differs from {own} as written; {REMEDY}"

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from dozerlab.integrity import DamagedFileError
 from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, first_line_is
 from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.blade import start_tip
@@ -76,9 +77,11 @@ class Trajectory:
         return len(self.velocity)
 
     def save_csv(self, path: str | Path) -> None:
-        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically."""
+        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically;
+        a trajectory that :func:`check_table` would refuse on loading is refused unwritten."""
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
+        check_table(path, table)
         with atomic_output(path, TRAJECTORY_FILE) as tmp:
             np.savetxt(
                 tmp,
@@ -101,9 +104,11 @@ class Trajectory:
             raise DozerlabError(
                 f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header!r}"
             )
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-        if len(table) < 2:
-            raise DozerlabError(f"{path}: a trajectory needs at least 2 rows, got {len(table)}")
+        try:
+            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:
+            raise DamagedFileError(f"{path} is damaged (not a table of numbers): {exc}") from exc
+        check_table(path, table)
         time, position, velocity = table[:, 1], table[:, 2:5], table[:-1, 5:8]
         return cls(
             time=np.ascontiguousarray(time),
@@ -115,6 +120,50 @@ class Trajectory:
             goal_height=float("nan"),
             dt=float(time[1] - time[0]),
         )
+
+
+def check_table(path: str | Path, table: np.ndarray) -> None:
+    """Refuse a trajectory table (rows ``step,time,x,y,z,vx,vy,vz``) that is not what
+    :meth:`Trajectory.save_csv` writes, naming ``path`` and the first row that differs.
+
+    The CSV carries no checksum, but its rows are tied to each other exactly, so a changed digit
+    breaks a tie: ``step`` counts 0, 1, …; ``time`` is ``step · dt`` with ``dt`` = ``time[1]``;
+    every position is the previous one plus ``dt`` times the previous row's velocity, bit for
+    bit (:func:`plan_trajectory` re-integrates them so, and ``%.17g`` reads back exactly); the
+    last row's velocity is zero; and every value is finite.
+    """
+    if table.ndim != 2 or table.shape[1] != len(CSV_COLUMNS):
+        raise DamagedFileError(
+            f"{path}: a trajectory has {len(CSV_COLUMNS)} columns, got shape {table.shape}"
+        )
+    if len(table) < 2:
+        raise DozerlabError(f"{path}: a trajectory needs at least 2 rows, got {len(table)}")
+    bad = np.argwhere(~np.isfinite(table))
+    if bad.size:
+        raise DamagedFileError(
+            f"{path}: row {bad[0][0]} holds NaN/inf ('{CSV_COLUMNS[bad[0][1]]}')"
+        )
+    n = len(table)
+    dt = table[1, 1] - table[0, 1]
+    position, velocity = table[:, 2:5], table[:-1, 5:8]
+    ties = {
+        "step": table[:, 0] == np.arange(n),
+        "time": table[:, 1] == np.arange(n) * dt,
+        "position": np.concatenate(
+            [[True], np.all(position[1:] == position[:-1] + dt * velocity, axis=1)]
+        ),
+    }
+    if not dt > 0:
+        raise DamagedFileError(f"{path}: the time step {dt} s is not positive (row 1)")
+    for what, ok in ties.items():
+        if not ok.all():
+            row = int(np.flatnonzero(~ok)[0])
+            raise DamagedFileError(
+                f"{path} is damaged or edited: row {row}'s {what} does not follow from the rows "
+                "before it as a planned trajectory's does; re-run `dozerlab trajectory`"
+            )
+    if np.any(table[-1, 5:8] != 0):
+        raise DamagedFileError(f"{path} is damaged or edited: the last row's velocity is not zero")
 
 
 def cut_path(x: np.ndarray, surface: np.ndarray, depth: float, goal_height: float) -> np.ndarray:
