@@ -31,6 +31,7 @@ COMMANDS = [
     "reduce",
     "reduce-points",
     "compare-reduced",
+    "verify",
 ]
 
 
