@@ -205,9 +205,10 @@ def checksummed(meta: dict[str, Any]) -> bool:
 
 
 def _crc_ok(data: bytes | memoryview) -> bool:
-    """Whether ``data`` ends in the little-endian CRC32C of the bytes before it."""
-    return len(data) >= 4 and google_crc32c.value(bytes(data[:-4])) == int.from_bytes(
-        bytes(data[-4:]), "little"
+    """Whether ``data`` ends in the little-endian CRC32C of the bytes before it (no copy)."""
+    raw = np.frombuffer(data, dtype=np.uint8)
+    return raw.size >= 4 and google_crc32c.value(raw[:-4]) == int.from_bytes(
+        raw[-4:].tobytes(), "little"
     )
 
 

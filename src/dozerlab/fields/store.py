@@ -117,7 +117,7 @@ def is_field_store(path: Path) -> bool:
 #: What ``simulate`` and ``import-legacy`` write; an existing store of ours may be replaced.
 FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
 #: zarr skips chunks that hold only the fill value; written all, a missing one is damage, not a
-#: run of zeros (``reader.missing_pieces``, :func:`open_store`).
+#: run of zeros (``reader.damaged_pieces``, :func:`open_store`).
 _ALL_CHUNKS: ArrayConfigParams = {"write_empty_chunks": True}
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
