@@ -93,6 +93,16 @@ def test_verify_names_each_damaged_artifact_in_a_folder_once(results, tmp_path):
     assert "2 damaged" in text
 
 
+def test_an_artifact_that_lost_its_metadata_file_is_damaged(results, tmp_path):
+    root = copy(results["bed"].parents[1], tmp_path)
+    (root / "fields" / "a.zarr" / "zarr.json").unlink()
+    (root / "models" / "linear" / "MLmodel").unlink()
+    code, text = run("verify", root)
+    assert code == 1 and "2 damaged" in text
+    assert f"DAMAGED {root / 'fields' / 'a.zarr'}:" in text
+    assert f"{root / 'models' / 'linear' / 'MLmodel'} is missing" in text
+
+
 def test_a_flipped_byte_in_a_compressed_velocity_chunk_is_refused_by_evaluate(results, tmp_path):
     """Read as velocities of 5.6e26 m/s (all finite) and evaluated with exit 0 before."""
     store = copy(results["store"], tmp_path)
@@ -186,7 +196,10 @@ def test_a_changed_trajectory_row_is_refused_by_name(results, tmp_path):
     lines[5] = ",".join(cells)
     traj.write_text("\n".join(lines) + "\n")
     code, text = run("verify", traj)
-    assert code == 1 and f"{traj} is damaged or edited: row 4's position" in text
+    assert code == 1 and f"{traj} is damaged: its bytes differ from the SHA-256" in text
+    traj.write_text("\n".join(lines[:-1]) + "\n")  # without its checksum line
+    code, text = run("verify", traj)
+    assert code == 1 and f"{traj} has no '# sha256' line at its end" in text
 
 
 # The property: random damage to every artifact kind.
@@ -250,7 +263,7 @@ damage = st.one_of(
 
 @pytest.mark.parametrize("target", list(TARGETS))
 @settings(
-    max_examples=5,
+    max_examples=8,
     deadline=None,
     derandomize=True,
     suppress_health_check=[HealthCheck.function_scoped_fixture],

@@ -58,7 +58,7 @@ def kind(path: Path) -> str | None:
     if path.is_dir():
         if (path / "MLmodel").exists() or (path / "artifacts" / "weights.pt").exists():
             return "model"
-        if (path / "zarr.json").is_file():
+        if path.suffix == ".zarr" or (path / "zarr.json").is_file():
             return "store"
         return None
     if path.suffix == ".npz":

@@ -24,6 +24,8 @@ the velocity to prescribe in each step:
 
 from __future__ import annotations
 
+import hashlib
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,8 @@ from dozerlab.scenarios.filters import smooth_height
 from dozerlab.scenarios.heightfield import height_field
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
+#: The start of a trajectory CSV's last line, followed by the SHA-256 (hex) of the bytes before it.
+_SHA_PREFIX = "# sha256 "
 #: What ``dozerlab trajectory`` writes: a CSV with exactly this header.
 TRAJECTORY_FILE = OutputKind("a dozerlab trajectory CSV", first_line_is(",".join(CSV_COLUMNS)))
 
@@ -77,37 +81,61 @@ class Trajectory:
         return len(self.velocity)
 
     def save_csv(self, path: str | Path) -> None:
-        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically;
-        a trajectory that :func:`check_table` would refuse on loading is refused unwritten."""
+        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity) and a last
+        line ``# sha256 HEX`` of the bytes before it, atomically; a trajectory that
+        :func:`check_table` refuses is refused unwritten."""
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
         check_table(path, table)
+        text = io.StringIO()
+        np.savetxt(
+            text,
+            table,
+            delimiter=",",
+            header=",".join(CSV_COLUMNS),
+            comments="",
+            fmt=["%d"] + ["%.17g"] * 7,
+        )
+        body = text.getvalue().encode()
         with atomic_output(path, TRAJECTORY_FILE) as tmp:
-            np.savetxt(
-                tmp,
-                table,
-                delimiter=",",
-                header=",".join(CSV_COLUMNS),
-                comments="",
-                fmt=["%d"] + ["%.17g"] * 7,
+            Path(tmp).write_bytes(
+                body + f"{_SHA_PREFIX}{hashlib.sha256(body).hexdigest()}\n".encode()
             )
 
     @classmethod
     def load_csv(cls, path: str | Path) -> Trajectory:
-        """Read a trajectory written by :meth:`save_csv` (positions and velocities bit-exact)."""
+        """Read a trajectory written by :meth:`save_csv` (positions and velocities bit-exact).
+
+        Refuses, naming the file, one whose bytes differ from its ``# sha256`` line or that has
+        none (written before it, or not by :meth:`save_csv`), and one :func:`check_table`
+        refuses."""
         path = Path(path)
         if not path.is_file():
             raise DozerlabError(f"trajectory file not found: {path}")
-        with open(path) as fh:
-            header = fh.readline().strip()
-        if header != ",".join(CSV_COLUMNS):
+        data = path.read_bytes()
+        header = data.split(b"\n", 1)[0].strip()
+        if header != ",".join(CSV_COLUMNS).encode():
             raise DozerlabError(
-                f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header!r}"
+                f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header[:80]!r}"
+            )
+        body, sep, last = data.rstrip(b"\n").rpartition(b"\n")
+        if not sep or not last.startswith(_SHA_PREFIX.encode()):
+            raise DamagedFileError(
+                f"{path} has no '{_SHA_PREFIX.strip()}' line at its end (cut short, or written by a "
+                "dozerlab older than it), so it cannot be verified; re-run `dozerlab trajectory`"
+            )
+        if (
+            last[len(_SHA_PREFIX) :].decode("ascii", "replace")
+            != hashlib.sha256(body + b"\n").hexdigest()
+        ):
+            raise DamagedFileError(
+                f"{path} is damaged: its bytes differ from the SHA-256 on its last line; re-run "
+                "`dozerlab trajectory`, or copy it again"
             )
         try:
-            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+            table = np.loadtxt(io.StringIO(body.decode()), delimiter=",", skiprows=1, ndmin=2)
         except ValueError as exc:
-            raise DamagedFileError(f"{path} is damaged (not a table of numbers): {exc}") from exc
+            raise DamagedFileError(f"{path} is not a table of numbers: {exc}") from exc
         check_table(path, table)
         time, position, velocity = table[:, 1], table[:, 2:5], table[:-1, 5:8]
         return cls(
@@ -126,8 +154,8 @@ def check_table(path: str | Path, table: np.ndarray) -> None:
     """Refuse a trajectory table (rows ``step,time,x,y,z,vx,vy,vz``) that is not what
     :meth:`Trajectory.save_csv` writes, naming ``path`` and the first row that differs.
 
-    The CSV carries no checksum, but its rows are tied to each other exactly, so a changed digit
-    breaks a tie: ``step`` counts 0, 1, …; ``time`` is ``step · dt`` with ``dt`` = ``time[1]``;
+    Checked on saving, so that nothing else is written, and on loading after the file's SHA-256:
+    ``step`` counts 0, 1, …; ``time`` is ``step · dt`` with ``dt`` = ``time[1]``;
     every position is the previous one plus ``dt`` times the previous row's velocity, bit for
     bit (:func:`plan_trajectory` re-integrates them so, and ``%.17g`` reads back exactly); the
     last row's velocity is zero; and every value is finite.
