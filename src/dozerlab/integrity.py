@@ -11,7 +11,8 @@ traceback. Each kind of file has one checker here or next to its format, which i
   up to 32 bits and all but 1 in 4·10⁹ others: enough for copies and disks. It does not stop a
   deliberate edit, nor would an unkeyed SHA-256 stored beside the data (it is recomputed as
   easily), so the files keep their format and older ones stay readable.
-- model files: their SHA-256 recorded at saving (:func:`sha256_file`), compared on loading.
+- model files: their SHA-256 recorded at saving (:func:`sha256_file`), compared on loading;
+  a trajectory CSV's SHA-256 is its last line (``dozerlab.scenarios.trajectory``).
 - JSON: parsed or refused naming the file (:func:`read_json`).
 """
 

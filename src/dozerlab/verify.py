@@ -13,8 +13,8 @@ field store (``.zarr``)   :func:`dozerlab.fields.store.verify_store`: the metada
 bed, final state          :meth:`dozerlab.scenarios.bed.Bed.load`: every array's CRC-32,
 (``.npz``)                finite values, positive radii and masses
 World file (``.npz``)     :func:`dozerlab.ndem.persist.load_world`
-trajectory (``.csv``)     :meth:`dozerlab.scenarios.trajectory.Trajectory.load_csv`: every
-                          row follows from the ones before it, exactly
+trajectory (``.csv``)     :meth:`dozerlab.scenarios.trajectory.Trajectory.load_csv`: the
+                          SHA-256 on its last line, every row following from the ones before
 model directory           :func:`dozerlab.learn.pyfunc.verify_model_dir`: every file against
                           the SHA-256 in ``meta.json``, and ``meta.json`` against its own
 JSON results              parsed (:func:`dozerlab.integrity.read_json`)
