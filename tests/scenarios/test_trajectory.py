@@ -121,3 +121,11 @@ def test_plot_writes_png(step_bed, config, tmp_path):
 
     plot_trajectory(plan_trajectory(step_bed, 1.0, 0.1, config), tmp_path / "t.png")
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_trajectory_with_nan_is_never_written(hill_bed, config, tmp_path):
+    traj = plan_trajectory(hill_bed, 0.7, 0.08, config)
+    traj.position[3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"t.csv: row 3 holds NaN/inf \('x'\)"):
+        traj.save_csv(tmp_path / "t.csv")
+    assert not (tmp_path / "t.csv").exists()
