@@ -479,3 +479,34 @@ def imported_by(code: str, libraries: tuple[str, ...]) -> list[str]:
     )
     out = subprocess.run([sys.executable, "-c", probe], check=True, capture_output=True, text=True)
     return list(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def results_folder(root: Path) -> dict[str, Path]:
+    """A small results folder holding one artifact of every kind ``dozerlab verify`` checks,
+    written by the package's own writers and commands: a bed, a final state, a trajectory, two
+    field stores, a force model trained on them (``dozerlab train``) and a results JSON.
+    Returns their paths by kind."""
+    from dozerlab.cli import main
+
+    _, bed, _ = write_tiny_run(root / "run")
+    (root / "states").mkdir()
+    bed.save(root / "states" / "final.npz")
+    fields = root / "fields"
+    paths = {
+        "bed": root / "run" / "bed.npz",
+        "state": root / "states" / "final.npz",
+        "trajectory": root / "run" / "speed~0.5_depth~0.06.csv",
+        "store": write(fields / "a.zarr", 1.0, 0.1, seed=1, steps=40),
+        "train": write(fields / "b.zarr", 0.5, 0.05, seed=2, steps=40),
+        "model": root / "models" / "linear",
+        "json": root / "validation" / "linear.json",
+    }
+    learn = {"learn": {"epochs": 2, "batch_size": 16}, "mlflow": {"enabled": False}}
+    code = main(
+        ["train", "--model", "linear", "--train", str(paths["store"]), str(paths["train"])]
+        + ["--config", json.dumps(learn), "--out", str(paths["model"]), "--threads", "1"]
+    )
+    assert code == 0
+    paths["json"].parent.mkdir()
+    paths["json"].write_text(json.dumps({"overall": {"force_rmse": 1.5}}))
+    return paths

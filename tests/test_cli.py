@@ -38,6 +38,7 @@ COMMANDS = [
     "reduce",
     "reduce-points",
     "compare-reduced",
+    "verify",
 ]
 
 

@@ -22,6 +22,7 @@ SHARED = {
     "cliargs",
     "headline",
     "console",
+    "integrity",
 }
 
 
@@ -98,7 +99,7 @@ def layer(module: str) -> int:
     parts = module.split(".")
     if len(parts) == 1 or parts[1] in SHARED:
         return LAYERS.index("shared")
-    return LAYERS.index("cli" if parts[1] == "__main__" else parts[1])
+    return LAYERS.index("cli" if parts[1] in ("__main__", "verify") else parts[1])
 
 
 def test_the_package_has_no_import_cycle():

@@ -2,7 +2,10 @@
 
 A bed file is an uncompressed-array ``.npz`` that ``np.load(path, allow_pickle=False)`` reads:
 the particle state arrays, the settle log arrays, and ``metadata``, a JSON string with the
-scalars and the material (density, friction, …) the bed was built with.
+scalars and the material (density, friction, …) the bed was built with. NDEM's and the reduced
+runs' final states are bed files too. Every array's CRC-32 is checked on loading
+(:func:`dozerlab.integrity.read_npz`), and a bed with a non-finite or non-positive particle
+value is neither written nor loaded.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from dozerlab import __version__
+from dozerlab.integrity import DamagedFileError, read_npz, require_finite
 from dozerlab.runtime import DozerlabError, OutputKind, atomic_output
 
 SCENARIOS: tuple[str, ...] = ("hill", "step")
@@ -114,9 +118,23 @@ class Bed:
         )
         return float((lin + rot).mean())
 
+    def check(self, where: str | Path) -> None:
+        """Refuse NaN/inf in any array and radii or masses that are not positive
+        (:class:`~dozerlab.integrity.DamagedFileError` naming ``where``, the file)."""
+        arrays = {name: getattr(self, name) for name in _ARRAYS}
+        require_finite(where, arrays, _ARRAYS)
+        for name in ("radii", "masses"):
+            bad = np.flatnonzero(arrays[name] <= 0)
+            if bad.size:
+                raise DamagedFileError(
+                    f"{where}: '{name}' holds {bad.size} value(s) <= 0, first of particle {bad[0]}"
+                )
+
     def save(self, path: str | Path, kind: OutputKind = BED_FILE) -> None:
         """Write the bed to ``path`` (.npz) atomically, as the output ``kind`` (a bed, a run's
-        final state), whose name its metadata records."""
+        final state), whose name its metadata records; a bed that fails :meth:`check` is
+        refused before anything is written."""
+        self.check(path)
         meta = {
             "scenario": self.scenario,
             "length": self.length,
@@ -137,18 +155,19 @@ class Bed:
         path = Path(path)
         if not path.is_file():
             raise DozerlabError(f"bed file not found: {path}")
+        data = read_npz(path, "a dozerlab bed file", ("metadata", *_ARRAYS))
         try:
-            with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["metadata"]))
-                arrays = {name: data[name] for name in _ARRAYS}
-        except (KeyError, ValueError, OSError) as exc:
+            meta = json.loads(str(data["metadata"]))
+            bed = cls(
+                scenario=meta["scenario"],
+                length=float(meta["length"]),
+                width=float(meta["width"]),
+                material=dict(meta["material"]),
+                seed=int(meta["seed"]),
+                info=dict(meta.get("info", {})),
+                **{name: data[name] for name in _ARRAYS},
+            )
+        except (KeyError, TypeError, ValueError) as exc:
             raise DozerlabError(f"{path} is not a dozerlab bed file: {exc}") from exc
-        return cls(
-            scenario=meta["scenario"],
-            length=float(meta["length"]),
-            width=float(meta["width"]),
-            material=dict(meta["material"]),
-            seed=int(meta["seed"]),
-            info=dict(meta.get("info", {})),
-            **arrays,
-        )
+        bed.check(path)
+        return bed
