@@ -30,13 +30,16 @@ rule all:
 
 # One parent MLflow run per invocation that runs jobs (Snakemake calls onstart only then, so a
 # rerun with nothing to do logs nothing); every job's run is its child. On SLURM, jobs no node
-# can hold are refused first, before anything is submitted or logged.
+# can hold are refused first, before anything is submitted or logged. From here on SIGTERM
+# stops the jobs as Ctrl-C does (Snakemake's own handler would let them finish).
 onstart:
+    runtime.sigterm_as_ctrl_c()
     check_cluster_fit()
     start_parent_run()
 
 
 onsuccess:
+    print_summary()
     end_parent_run("FINISHED", log)
 
 

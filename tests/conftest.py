@@ -2,17 +2,30 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from mlflow.tracking import MlflowClient
 
 from dozerlab import spool, tracking
+from tests.helpers import copy_mlflow_store
+
+
+@pytest.fixture(scope="session")
+def mlflow_template(tmp_path_factory) -> Path:
+    """An empty SQLite MLflow store, made once a session: tests copy it
+    (:func:`tests.helpers.copy_mlflow_store`) instead of creating the tables again."""
+    db = tmp_path_factory.mktemp("mlflow_template") / "mlflow.db"
+    client = MlflowClient(tracking_uri=f"sqlite:///{db}")
+    client.search_experiments()  # creates the tables and the Default experiment
+    return db
 
 
 @pytest.fixture
-def mlflow_store(tmp_path, monkeypatch) -> MlflowClient:
+def mlflow_store(tmp_path, monkeypatch, mlflow_template) -> MlflowClient:
     """A fresh SQLite MLflow store in tmp_path (the working directory), tracking on, no parent
     run; returns a client of it."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = copy_mlflow_store(mlflow_template, tmp_path)
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     monkeypatch.delenv("DOZERLAB_MLFLOW", raising=False)

@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
+import sqlite3
 from collections.abc import Callable
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +38,21 @@ SMALL_SWEEP = {
 
 #: The grid of the synthetic field stores, (Nx, Ny, Nz).
 GRID = (8, 6, 4)
+
+
+def copy_mlflow_store(template: Path, directory: Path) -> str:
+    """A fresh SQLite MLflow store ``directory/mlflow.db`` copied from ``template``, an empty
+    store MLflow made (creating its tables takes seconds, a copy milliseconds); its Default
+    experiment keeps its artifacts in ``directory/mlruns/0``, as in a store made there. Returns
+    the store's URI."""
+    db = directory / "mlflow.db"
+    shutil.copyfile(template, db)
+    with closing(sqlite3.connect(db)) as con, con:
+        con.execute(
+            "UPDATE experiments SET artifact_location = ? WHERE experiment_id = 0",
+            (str(directory / "mlruns" / "0"),),
+        )
+    return f"sqlite:///{db}"
 
 
 def lattice_bed(
@@ -293,6 +311,75 @@ def validation_json(results: Path, model: str) -> None:
     path.write_text(json.dumps(doc))
 
 
+def dynamics_overall(velocity: float, density: float, mass: float) -> dict:
+    """Metrics of a group whose velocity error grows linearly along the rollout: ``velocity``
+    at one step, 5 × ``velocity`` at 50 steps."""
+    return {
+        "one_step": {"velocity": velocity, "density": density},
+        "rollout_at": {
+            k: {"steps": int(k), "velocity": velocity * int(k) / 10, "density": density}
+            for k in ("10", "50", "100")
+        },
+        "rollout": {"velocity": [velocity * k / 10 for k in range(1, 101)]},
+        "mass": {"max_abs_error": mass},
+    }
+
+
+def dynamics_json(results: Path, model: str, velocity: float, mass: float) -> None:
+    """``dozerlab validate-dynamics``'s JSON of ``model`` on one interpolation point (velocity
+    error ``velocity`` at one step, :func:`dynamics_overall`), at its place under ``results``."""
+    point = {"name": "hill speed~0.75_depth~0.1", **dynamics_overall(velocity, 0.1, mass)}
+    doc = {
+        "summary": f"{model}: done",
+        "history": 2,
+        "horizon": 1,
+        "groups": {
+            "interpolation": {"overall": dynamics_overall(velocity, 0.1, mass), "points": [point]}
+        },
+    }
+    path = P.dynamics_validation_path(results, model)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
+
+
+REDUCED_TARGETS = {
+    "height_accuracy": 0.8,
+    "force_rmse": 0.25,
+    "loop_speedup": 50,
+    "job_speedup": 5,
+    "max_overlap": 0.1,
+}
+
+
+def reduced_json(results: Path, model: str, gif: bytes = b"GIF89a") -> None:
+    """``dozerlab compare-reduced``'s JSON of ``model`` on one interpolation point (height
+    accuracy 90 %, force 30 %, loop 62×, force_rmse missed), its force plot and the animation
+    ``gif`` (bytes), at their places under ``results``."""
+    point = {
+        "scenario": "hill",
+        "speed": 0.75,
+        "depth": 0.1,
+        "role": "interpolation",
+        "height_accuracy": 0.9,
+        "force_x_rel_rmse": 0.3,
+        "velocity_rel_l2": 0.2,
+        "density_rel_l2": 0.1,
+        "final_emd_m": 0.0042,
+        "max_overlap_loop": 0.05,
+        "left_bed": 0,
+        "loop_speedup": 62.0,
+        "job_speedup": None,
+        "targets_met": {"height_accuracy": True, "force_rmse": False, "job_speedup": None},
+        "force_model": "linear-loop",
+        "plots": ["hill_speed~0.75_depth~0.1_force.png", "hill_speed~0.75_depth~0.1.gif", "x.png"],
+    }
+    path = P.reduced_comparison_path(results, model)
+    compare = path.with_suffix("") / "compare"
+    png_file(compare / point["plots"][0], "force")
+    (compare / point["plots"][1]).write_bytes(gif)
+    path.write_text(json.dumps({"targets": REDUCED_TARGETS, "points": [point]}))
+
+
 def table_cells(text: str, section: str, row: int) -> list[str]:
     """The cells of data row ``row`` (header rows not counted) of the tables in the report's
     section ``section``."""
@@ -305,7 +392,7 @@ def report_context(cfg: dict[str, Any], results: Path) -> Any:
     """The :class:`dozerlab.report.sections.Context` a section renders from."""
     from dozerlab.report.sections import Context
 
-    return Context(cfg, results, tuple(P.sweep_points(cfg)))
+    return Context(cfg, results, tuple(P.sweep_points(cfg)), results / "report")
 
 
 def import_entry(module: str) -> tuple[str, str]:
@@ -392,3 +479,34 @@ def imported_by(code: str, libraries: tuple[str, ...]) -> list[str]:
     )
     out = subprocess.run([sys.executable, "-c", probe], check=True, capture_output=True, text=True)
     return list(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def results_folder(root: Path) -> dict[str, Path]:
+    """A small results folder holding one artifact of every kind ``dozerlab verify`` checks,
+    written by the package's own writers and commands: a bed, a final state, a trajectory, two
+    field stores, a force model trained on them (``dozerlab train``) and a results JSON.
+    Returns their paths by kind."""
+    from dozerlab.cli import main
+
+    _, bed, _ = write_tiny_run(root / "run")
+    (root / "states").mkdir()
+    bed.save(root / "states" / "final.npz")
+    fields = root / "fields"
+    paths = {
+        "bed": root / "run" / "bed.npz",
+        "state": root / "states" / "final.npz",
+        "trajectory": root / "run" / "speed~0.5_depth~0.06.csv",
+        "store": write(fields / "a.zarr", 1.0, 0.1, seed=1, steps=40),
+        "train": write(fields / "b.zarr", 0.5, 0.05, seed=2, steps=40),
+        "model": root / "models" / "linear",
+        "json": root / "validation" / "linear.json",
+    }
+    learn = {"learn": {"epochs": 2, "batch_size": 16}, "mlflow": {"enabled": False}}
+    code = main(
+        ["train", "--model", "linear", "--train", str(paths["store"]), str(paths["train"])]
+        + ["--config", json.dumps(learn), "--out", str(paths["model"]), "--threads", "1"]
+    )
+    assert code == 0
+    paths["json"].parent.mkdir()
+    paths["json"].write_text(json.dumps({"overall": {"force_rmse": 1.5}}))
+    return paths

@@ -3,10 +3,17 @@ layer (``config``, ``mlflow-start``, ``mlflow-end``), and errors a user can fix 
 traceback."""
 
 import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from string import Formatter
 
 import pytest
 import yaml
 
+from dozerlab import sweep as P
 from dozerlab.cli import build_parser, main
 from dozerlab.config import load_config
 from tests.helpers import imported_by
@@ -31,12 +38,62 @@ COMMANDS = [
     "reduce",
     "reduce-points",
     "compare-reduced",
+    "verify",
 ]
 
 
 def test_every_command_is_registered_once_in_order():
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     assert list(sub.choices) == COMMANDS
+
+
+def result_path_regex(template: str) -> str:
+    """A regex of the paths a :data:`dozerlab.sweep.PATHS` template names under results/."""
+    parts = [
+        re.escape(text) + ("[^/]+" if field is not None else "")
+        for text, field, _, _ in Formatter().parse(template)
+    ]
+    return "results/" + "".join(parts)
+
+
+RESULT_PATHS = re.compile("|".join(result_path_regex(t) for t in P.PATHS.values()))
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_help_says_what_it_does_and_shows_a_real_example(command, capsys):
+    """One line of what the command does, then its options, then an example: a command line
+    that parses, on the paths of the default results layout."""
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    printed = capsys.readouterr().out
+    usage, summary, *_ = printed.split("\n\n")
+    assert usage.startswith(f"usage: dozerlab {command}")
+    assert summary and "\n" not in summary and len(summary) <= 100
+    _, sep, example = printed.partition("\nexample:\n")
+    assert sep
+    argv = shlex.split(example.replace("\\\n", " "))
+    assert argv[:4] == ["python", "-m", "dozerlab", command]
+    assert build_parser().parse_args(argv[3:]).command == command
+    paths = [a for a in argv if a.startswith("results/")]
+    assert all(RESULT_PATHS.fullmatch(a) for a in paths), paths
+
+
+def test_python_m_dozerlab_lists_each_command_with_its_one_line_summary():
+    """The entry a user types, in a fresh interpreter: ``python -m dozerlab --help``."""
+    env = {**os.environ, "COLUMNS": "200"}  # one line per command, however narrow the terminal
+    listed = subprocess.run(
+        [sys.executable, "-m", "dozerlab", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    ).stdout
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    for choice in sub._choices_actions:  # the listed commands, with their help
+        line = rf"^ +{choice.dest}\s+{re.escape(choice.help)}$"
+        assert re.search(line, listed, re.M), choice.dest
+    assert len(sub._choices_actions) == len(COMMANDS) - 3  # the Snakefile's hooks are not listed
 
 
 def test_config_prints_the_complete_document(tmp_path, capsys):

@@ -126,7 +126,10 @@ def test_job_resources_name_account_and_partition_only_when_set():
     assert cluster.job_threads(config, "validate") == 1
 
 
-@pytest.mark.parametrize("base", ["config.yaml", "quick.yaml"])
+@pytest.mark.parametrize(
+    "base",
+    [pytest.param("config.yaml", marks=pytest.mark.slow), "quick.yaml"],  # a dry run each
+)
 def test_the_rules_take_memory_time_and_partition_from_a_config_overlay(tmp_path, base):
     """A dry run shows what each job would ask: an overlay raises one field, the rest stay."""
     overlay = tmp_path / "cluster.yaml"

@@ -1,4 +1,5 @@
 import json
+import re
 
 import pytest
 
@@ -33,11 +34,11 @@ def test_inline_json_and_file(tmp_path):
         ({"solver": {"dt": 0}}, "solver.dt", "> 0"),
         ({"solver": {"iterations": 0}}, "solver.iterations", ">= 1"),
         ({"material": {"poisson_ratio": 0.7}}, "material.poisson_ratio", "<= 0.5"),
-        ({"sweep": {"scenarios": ["dune"]}}, "sweep.scenarios.0", "one of"),
+        ({"sweep": {"scenarios": ["dune"]}}, "sweep.scenarios[0]", "one of"),
         (
             {"sweep": {"interpolation": [{"scenario": "hill", "speed": -1, "depth": 0.1}]}},
-            "sweep.interpolation.0.speed",
-            "> 0",
+            "sweep.interpolation[0].speed",
+            ">= 0.01",
         ),
         ({"blade": {"colour": "red"}}, "blade", "only the fields"),
     ],
@@ -103,11 +104,13 @@ def test_a_job_given_the_blade_but_not_the_bed_hears_nothing_of_the_default_beds
     [
         ({"sweep": {"speeds": [1.0, 1.0, 1]}}, "sweep.speeds", "each value once"),
         ({"sweep": {"depths": [0.05, 0.05]}}, "sweep.depths", "each value once"),
-        ({"sweep": {"speeds": ["1e9"]}}, "sweep.speeds.0", "<= 20"),
+        ({"sweep": {"speeds": ["1e9"]}}, "sweep.speeds[0]", "<= 20"),
     ],
 )
 def test_duplicates_and_big_numbers_name_field_and_range(doc, field, allowed):
-    with pytest.raises(ConfigError, match=rf"config field '{field}'.*allowed: {allowed}"):
+    with pytest.raises(
+        ConfigError, match=rf"config field '{re.escape(field)}'.*allowed: {allowed}"
+    ):
         load_config(doc)
 
 
@@ -124,17 +127,17 @@ def test_numbers_in_exponent_form_are_numbers(tmp_path):
 
 def test_held_out_point_on_the_training_grid_is_refused_by_config():
     held = [{"scenario": "hill", "speed": 1, "depth": 0.1}]  # 1 and 1.0 are one point
-    with pytest.raises(ConfigError, match=r"'sweep.extrapolation.0'.*already in the sweep grid"):
+    with pytest.raises(ConfigError, match=r"'sweep.extrapolation\[0\]'.*already in the sweep grid"):
         load_config({"sweep": {"speeds": [1.0], "depths": [0.1], "extrapolation": held}})
 
 
 @pytest.mark.parametrize(
     ("sweep", "field"),
     [
-        ({"depths": [0.05, 0.2]}, "sweep.depths.1"),
+        ({"depths": [0.05, 0.2]}, "sweep.depths[1]"),
         (
             {"depths": [0.05], "interpolation": [{"scenario": "step", "speed": 1.2, "depth": 0.4}]},
-            "sweep.interpolation.0.depth",
+            "sweep.interpolation[0].depth",
         ),
     ],
 )
@@ -147,7 +150,7 @@ def test_cuts_deeper_than_the_bed_are_refused(sweep, field):
         },
         "sweep": sweep,
     }
-    hill = field == "sweep.depths.1"
+    hill = field == "sweep.depths[1]"
     level, low = ("0.24", "base_height 0.1") if hill else ("0.35", "low_height 0.35")
     with pytest.raises(ConfigError) as exc:
         load_config(doc)
@@ -180,3 +183,113 @@ def test_config_command_names_bad_yaml_and_leaks_without_traceback(tmp_path, cap
     )
     assert main(["config", str(leak)]) == 2
     assert "already in the sweep grid" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("doc", "field"),
+    [
+        ({"solver": {"dt": float("nan")}}, "solver.dt"),
+        (
+            {"reduced": {"projection": {"relaxation": float("nan")}}},
+            "reduced.projection.relaxation",
+        ),
+        ({"learn": {"ridge_alpha": float("inf")}}, "learn.ridge_alpha"),
+        ({"bed": {"settle_kinetic_energy": float("inf")}}, "bed.settle_kinetic_energy"),
+        ({"solver": {"gravity": [0.0, 0.0, float("-inf")]}}, "solver.gravity[2]"),
+        ({"sweep": {"speeds": [1.0, float("nan")]}}, "sweep.speeds[1]"),
+    ],
+)
+def test_non_finite_numbers_are_refused_by_field(doc, field):
+    """NaN compares false with every bound, so it passed the ranges; infinity passed the open
+    ones (ridge_alpha: inf trained a constant predictor)."""
+    with pytest.raises(ConfigError) as exc:
+        load_config(doc)
+    assert f"config field '{field}'" in str(exc.value)
+    assert "is not a finite number (allowed: a finite number)" in str(exc.value)
+    assert str(exc.value).count("config field") == 1  # not its bounds as well
+
+
+@pytest.mark.parametrize(
+    ("doc", "field", "allowed"),
+    [
+        ({"learn": {"epochs": 3.0}}, "learn.epochs", "a whole number, written without a point"),
+        ({"sampling": {"bins": [8, 8.0, 4]}}, "sampling.bins[1]", "a whole number"),
+        ({"learn": {"batch_size": True}}, "learn.batch_size", "a whole number"),
+        ({"seed": 99999999999999999999999}, "seed", "<= 4294967295"),
+        ({"seed": 2**32}, "seed", "<= 4294967295"),
+        ({"sweep": {"speeds": [1e-9]}}, "sweep.speeds[0]", ">= 0.01"),
+        ({"sweep": {"depths": [1.0e-250]}}, "sweep.depths[0]", ">= 0.001"),
+        (
+            {"sweep": {"extrapolation": [{"scenario": "hill", "speed": 0.001, "depth": 0.1}]}},
+            "sweep.extrapolation[0].speed",
+            ">= 0.01",
+        ),
+    ],
+)
+def test_integers_seed_speeds_and_depths_are_bounded(doc, field, allowed):
+    with pytest.raises(ConfigError) as exc:
+        load_config(doc)
+    assert f"config field '{field}'" in str(exc.value) and allowed in str(exc.value)
+
+
+def test_the_bounds_and_the_whole_numbers_that_remain_valid():
+    cfg = load_config(
+        {
+            "seed": 2**32 - 1,
+            "learn": {"epochs": 3},
+            "sweep": {"speeds": [0.01, 0.5], "depths": [0.05]},
+            "bed": {"length": 1.0},
+        }
+    )
+    assert cfg["seed"] == 2**32 - 1 and cfg["learn"]["epochs"] == 3
+
+
+def test_a_key_given_twice_is_refused_naming_file_and_lines(tmp_path, capsys):
+    path = tmp_path / "twice.yaml"
+    path.write_text("learn:\n  epochs: 5\nsolver: {dt: 0.01}\nlearn:\n  epochs: 7\n")
+    assert main(["config", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"dozerlab config: error: configuration file {path} gives the key 'learn' twice in one "
+        "mapping (lines 1 and 4; allowed: each key once)"
+    )
+    path.write_text("solver: {dt: 0.01, dt: 0.02}\n")
+    with pytest.raises(ConfigError, match="the key 'dt' twice"):
+        load_config(path)
+    with pytest.raises(ConfigError, match="inline configuration gives the key 'seed' twice"):
+        load_config('{"seed": 1, "seed": 2}')
+
+
+def test_a_binary_config_file_is_one_line_naming_it(tmp_path, capsys):
+    path = tmp_path / "config.yaml"
+    path.write_bytes(b"seed: 1\n\x89PNG\r\n\x1a\n\x00\xff\xfe")
+    assert main(["config", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert f"configuration file {path} is not UTF-8 text (byte 8 is 0x89)" in err
+
+
+def test_the_config_command_names_the_file_and_every_bad_field(tmp_path, capsys):
+    path = tmp_path / "c.yaml"
+    path.write_text("solver: {dt: .nan}\nlearn: {ridge_alpha: .inf, epochs: 3.0}\n")
+    assert main(["config", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"error: configuration file {path}: invalid configuration" in err
+    for line in (
+        "'learn.epochs': 3.0 is not of type 'integer'",
+        "'learn.ridge_alpha': inf is not a finite number",
+        "'solver.dt': nan is not a finite number",
+    ):
+        assert line in err
+
+
+def test_check_value_gives_a_flag_the_fields_bounds():
+    from dozerlab.config import check_value
+
+    check_value(("sweep", "speeds", 0), 0.5)
+    with pytest.raises(
+        ConfigError, match=r"--speed: 0\.001 is less than the minimum of 0\.01 .*'sweep\.speeds'"
+    ):
+        check_value(("sweep", "speeds", 0), 0.001, "--speed")
+    with pytest.raises(ConfigError, match="not a finite number"):
+        check_value(("sweep", "depths", 0), float("nan"))

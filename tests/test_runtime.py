@@ -13,13 +13,19 @@ import pytest
 
 from dozerlab.runtime import (
     FIGURE,
+    FOLDER_MARK,
     DozerlabError,
     OutputExistsError,
     OutputKind,
+    OutputPathError,
     atomic_output,
+    check_name,
     check_output,
     die_with_workflow,
     freeze_heap,
+    job_outputs,
+    marked_folder,
+    marked_png,
     png_metadata,
     process_token,
     set_threads,
@@ -206,6 +212,125 @@ def test_figures_are_marked_and_others_pngs_are_not_replaced(tmp_path):
     check_output(ours, FIGURE)
     with pytest.raises(OutputExistsError, match="not a PNG figure written by dozerlab"):
         check_output(theirs, FIGURE)
+
+
+def test_a_figure_marked_for_one_command_is_not_anothers(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    bed_plot, path_plot = marked_png("a bed figure", "bed-plot"), marked_png("a path", "path-plot")
+    png = tmp_path / "fig.png"
+    Figure().savefig(png, format="png", metadata=png_metadata(bed_plot.name))
+    check_output(png, bed_plot)
+    with pytest.raises(OutputExistsError, match="not a path"):
+        check_output(png, path_plot)
+
+
+FIGURES = marked_folder("a folder of test figures", "test-figures")
+
+
+def write_folder(path, names=("a.png", "sub/b.png")):
+    with atomic_output(path, FIGURES) as tmp:
+        for name in names:
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / name).write_text(name)
+
+
+def test_a_marked_folder_is_replaced_only_while_it_holds_only_what_it_lists(tmp_path):
+    out = tmp_path / "figs"
+    write_folder(out)
+    assert FIGURES.recognise(out) and (out / FOLDER_MARK).is_file()
+    (out / ".snakemake_timestamp").touch()  # as the workflow leaves a directory() output
+    write_folder(out, ["c.png"])  # ours: replaced whole
+    assert sorted(p.name for p in out.iterdir()) == [FOLDER_MARK, "c.png"]
+    (out / "keep.txt").write_text("added by a user")
+    with pytest.raises(OutputExistsError, match="not a folder of test figures"):
+        write_folder(out)
+    assert (out / "keep.txt").read_text() == "added by a user"
+
+
+@pytest.mark.parametrize("folder", ["empty", "users", "another kind's"])
+def test_a_folder_not_marked_as_this_kind_is_refused(tmp_path, folder):
+    out = tmp_path / "figs"
+    if folder == "another kind's":
+        with atomic_output(out, marked_folder("other", "other-figures")) as tmp:
+            tmp.mkdir()
+    else:
+        out.mkdir()
+        if folder == "users":
+            (out / "keep.txt").write_text("mine")
+    with pytest.raises(OutputExistsError, match=f"refusing to replace {out}"):
+        write_folder(out)
+
+
+def test_a_failed_job_leaves_none_of_its_outputs_and_restores_the_earlier_ones(tmp_path):
+    earlier = tmp_path / "a.txt"
+    earlier.write_text("ours, earlier")
+    new = tmp_path / "sub" / "deeper" / "b.txt"
+
+    def job():
+        with job_outputs(("--a", earlier, TEXT), ("--b", new, TEXT)):
+            write(earlier, "ours, this run")
+            write(new, "ours, this run")
+            killed()
+
+    with pytest.raises(RuntimeError):
+        job()
+    assert earlier.read_text() == "ours, earlier"
+    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]  # no folder, temporary, kept copy
+
+
+def test_a_job_that_succeeds_keeps_no_earlier_output(tmp_path):
+    earlier = tmp_path / "a.txt"
+    earlier.write_text("ours, earlier")
+    with job_outputs(("--a", earlier, TEXT), ("--b", None, TEXT)):
+        write(earlier, "ours, this run")
+    assert earlier.read_text() == "ours, this run"
+    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_every_output_is_checked_before_the_body_runs(tmp_path):
+    (tmp_path / "file").write_text("in the way")
+    ran = []
+    with (
+        pytest.raises(OutputPathError, match=r"\(--b\): .* is a file, not a folder"),
+        job_outputs(("--a", tmp_path / "a.txt", TEXT), ("--b", tmp_path / "file" / "b", TEXT)),
+    ):
+        ran.append(True)
+    assert not ran and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_outputs_inside_each_other_are_refused(tmp_path):
+    with (
+        pytest.raises(OutputPathError, match="would overwrite each other"),
+        job_outputs(("--out", tmp_path / "d", None), ("--plots", tmp_path / "d" / "p", None)),
+    ):
+        pass
+
+
+@pytest.mark.parametrize("name", ["ridge", "unet-2", "speed~1.0", "a.b"])
+def test_a_name_is_accepted(name):
+    assert check_name(name, "--model") == name
+
+
+@pytest.mark.parametrize(
+    ("name", "why"),
+    [
+        ("", "is empty"),
+        (".", "is not a name"),
+        ("..", "is not a name"),
+        ("../../victim", "holds a path separator"),
+        ("/abs", "holds a path separator"),
+        ("a\\b", "holds a path separator"),
+        ("a\0b", "holds a NUL character"),
+        ("x" * 256, "is longer than 255 bytes"),
+    ],
+)
+def test_a_path_is_not_a_name(name, why):
+    with pytest.raises(DozerlabError, match=f"--dynamics-model .* {why}"):
+        check_name(name, "--dynamics-model")
 
 
 WORKFLOW = """

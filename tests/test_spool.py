@@ -123,6 +123,7 @@ def test_a_damaged_record_is_refused_by_name_and_kept_the_others_logged(workflow
     assert folder.is_dir() and list(children(client, parent)) == ["bed step"]
 
 
+@pytest.mark.slow  # a follower process and several jobs
 def test_the_follower_logs_runs_as_jobs_end_and_stops_on_sigterm(workflow, tmp_path):
     client, parent, _root = workflow
     follower = subprocess.Popen(
@@ -167,3 +168,41 @@ def test_the_end_of_a_workflow_logs_what_is_left_and_the_next_start_what_a_kille
     tracking.start_parent_run("dozerlab", "workflow")
     assert children(client, killed)["simulate step"].info.status == "FINISHED"
     assert not (root / killed).exists()
+
+
+def test_runs_of_a_sweep_point_say_its_group(mlflow_store, tmp_path, monkeypatch):
+    """The jobs do not know their point's group (their config leaves the sweep out, so that
+    editing it reruns nothing); the parent run records the groups and the ingestion tags them."""
+    from dozerlab.config import load_config
+
+    root = tmp_path / "spool"
+    monkeypatch.setenv(spool.SPOOL_ENV, str(root))
+    sweep = {
+        "scenarios": ["hill"],
+        "speeds": [1.0, 1.5],
+        "depths": [0.04],
+        "interpolation": [{"scenario": "hill", "speed": 1.25, "depth": 0.04}],
+        "extrapolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.04}],
+    }
+    parent = tracking.start_parent_run("dozerlab", "sweep/x", config=load_config({"sweep": sweep}))
+    monkeypatch.setenv(tracking.PARENT_ENV, parent)
+    for speed in (1.0, 1.25, 0.75, 2.0):
+        point = {"scenario": "hill", "speed": speed, "depth": 0.04}
+        with tracking.tracked_run(f"simulate {speed}", rule="simulate", tags=point):
+            pass
+    with tracking.tracked_run("compare ridge", rule="compare_reduced"):
+        pass
+    tracking.end_parent_run(parent)
+    runs = children(mlflow_store, parent)
+    tags = {
+        name: (r.data.tags.get("group"), r.data.tags.get("held_out")) for name, r in runs.items()
+    }
+    assert tags == {
+        "simulate 1.0": ("training", "false"),
+        "simulate 1.25": ("interpolation", "true"),
+        "simulate 0.75": ("extrapolation", "true"),
+        "simulate 2.0": (None, None),  # not a point of this sweep
+        "compare ridge": (None, None),
+    }
+    assert runs["compare ridge"].data.tags["role"] == "compare"
+    assert not (root / parent).exists()  # the groups file goes with the last record

@@ -46,9 +46,9 @@ def test_sweep_points_and_paths():
 def test_held_out_point_on_the_grid_is_refused():
     cfg = load_config({"sweep": {"speeds": [1.0], "depths": [0.1]}})
     cfg["sweep"]["extrapolation"] = [{"scenario": "step", "speed": 1.0, "depth": 0.1}]
-    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\.0"):
+    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\[0\]"):
         P.sweep_points(cfg)
-    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\.0"):
+    with pytest.raises(ConfigError, match=r"sweep\.extrapolation\[0\]"):
         load_config(cfg)  # and the config is refused before anything runs
 
 
@@ -83,7 +83,7 @@ def test_a_point_listed_twice_among_held_out_points_is_refused():
     twice = {"scenario": "hill", "speed": 0.75, "depth": 0.1}
     cfg = load_config({"sweep": {"speeds": [1.0], "depths": [0.1]}})
     cfg["sweep"]["interpolation"] = [twice] * 2
-    message = r"sweep\.interpolation\.1.*already in the sweep\.interpolation"
+    message = r"sweep\.interpolation\[1\].*already in the sweep\.interpolation"
     with pytest.raises(ConfigError, match=message):
         P.sweep_points(cfg)
     with pytest.raises(ConfigError, match=message):

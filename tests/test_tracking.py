@@ -14,7 +14,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from dozerlab import tracking
-from dozerlab.runtime import WORKFLOW_HOST_ENV, WORKFLOW_PID_ENV
+from dozerlab.runtime import WORKFLOW_HOST_ENV, WORKFLOW_PID_ENV, DozerlabError
 
 JOB = """
 import sys, time
@@ -27,6 +27,7 @@ with tracked_run("job" + sys.argv[2], rule="test"):
 """
 
 
+@pytest.mark.slow  # four job processes race to create a store's tables
 def test_jobs_started_together_on_a_fresh_store_all_record(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "DOZERLAB_"))}
     start = time.time() + 5.0  # past every interpreter's start-up, so they reach the store at once
@@ -85,6 +86,7 @@ def test_a_job_gives_up_on_an_absent_server_after_the_bounded_wait(tmp_path, mon
     assert not (tmp_path / "mlflow.db").exists()  # no fallback to a local store
 
 
+@pytest.mark.slow  # starts a real MLflow server
 def test_a_job_waits_for_a_server_that_comes_up_late_and_records_its_run(tmp_path, monkeypatch):
     """A real tracking server on 127.0.0.1, started seconds after the job: the job waits for it,
     and its run lands FINISHED in the server's store."""
@@ -145,7 +147,7 @@ def test_tracking_off_yields_no_run_and_writes_no_store(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
+def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path, capsys):
     parent = tracking.start_parent_run(
         "dozerlab", "workflow", config={"solver": {"dt": 0.01}}, tags={"configfiles": "a.yaml"}
     )
@@ -159,16 +161,38 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
             raise RuntimeError("boom")
     finally:
         del os.environ[tracking.PARENT_ENV]
-    report = tmp_path / "index.html"
-    report.write_text("<html></html>")
-    logged = tracking.end_parent_run(parent, "FINISHED", [report, tmp_path / "absent.log"])
-    assert logged == [report]
+    report = tmp_path / "report"  # the report's folder: the page and its animations
+    (report / "animations").mkdir(parents=True)
+    (report / "index.html").write_text("<html></html>")
+    (report / "animations" / "a.gif").write_bytes(b"GIF89a")
+    (report / ".snakemake_timestamp").write_bytes(b"")  # hidden: not logged
+    log = tmp_path / "snakemake.log"
+    log.write_text("done")
+    headline = {"force_x_rel_rmse/best": 0.25}
+    logged = tracking.end_parent_run(
+        parent, "FINISHED", [report, log, tmp_path / "absent.log"], headline
+    )
+    assert logged == [report, log]
+    # the count of every job run under the parent, not only those ingested at its end
+    said = capsys.readouterr().err
+    assert f"MLflow: 2 job runs under workflow run {parent}" in said
+    assert "models registered: none" in said
 
     run = mlflow_store.get_run(parent)
     assert run.info.status == "FINISHED"
     assert run.data.params == {"solver.dt": "0.01"}
     assert run.data.tags["rule"] == "workflow" and run.data.tags["configfiles"] == "a.yaml"
-    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["index.html"]
+    assert run.data.tags["role"] == "parent"
+    assert run.data.metrics["force_x_rel_rmse/best"] == 0.25
+    assert run.data.metrics["wall_seconds"] >= 0
+    assert [a.path for a in mlflow_store.list_artifacts(parent)] == ["report", "snakemake.log"]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report")] == [
+        "report/animations",
+        "report/index.html",
+    ]
+    assert [a.path for a in mlflow_store.list_artifacts(parent, "report/animations")] == [
+        "report/animations/a.gif"
+    ]
     exp = mlflow_store.get_experiment_by_name("dozerlab").experiment_id
     children = {
         r.info.run_name: r
@@ -178,6 +202,28 @@ def test_parent_run_children_tags_params_and_failed_job(mlflow_store, tmp_path):
     assert children["simulate hill"].data.tags["speed"] == "1.0"
     assert children["simulate hill"].data.params == {"solver.dt": "0.01"}
     assert children["train"].info.status == "FAILED"
+    assert [children[n].data.tags["role"] for n in ("simulate hill", "train")] == [
+        "simulate",
+        "train",
+    ]
+
+
+def test_run_and_registry_names_have_one_style():
+    assert tracking.run_name("simulate", "hill", "speed~1_depth~0.04") == (
+        "simulate/hill/speed~1_depth~0.04"
+    )
+    assert tracking.run_name("compare", "ridge", None, "") == "compare/ridge"
+    mine = {"mlflow": {"experiment": "mine"}}
+    assert tracking.registered_name(mine, "evolution", "unet") == "mine-evolution-unet"
+    assert tracking.registered_name(None, "force", "cnn") == "dozerlab-force-cnn"
+    assert set(tracking.ROLES.values()) == {
+        "bed",
+        "simulate",
+        "train",
+        "validate",
+        "reduce",
+        "compare",
+    }
 
 
 def test_end_parent_run_refuses_an_unknown_status(mlflow_store):
@@ -245,3 +291,29 @@ def test_the_parent_run_of_a_killed_snakemake_is_closed_as_killed(
         for p in (killed, running):
             p.kill()
             p.wait()
+
+
+def test_a_garbage_tracking_store_is_one_line_naming_it(tmp_path, monkeypatch, capsys):
+    """A local mlflow.db that is not SQLite gave a sqlalchemy traceback."""
+    from dozerlab.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.delenv(tracking.PARENT_ENV, raising=False)
+    monkeypatch.setenv(tracking.ENABLED_ENV, "1")
+    db = tmp_path / "mlflow.db"
+    db.write_bytes(b"\x7fELF\x02\x01\x01" + bytes(range(256)) * 8)
+    before = db.read_bytes()
+    assert main(["mlflow-start", "--config", "{}"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "MLflow tracking store mlflow.db is not an SQLite database" in err
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{db}")
+    with (
+        pytest.raises(DozerlabError, match=f"store {db} is not an SQLite database"),
+        tracking.tracked_run("job", rule="bed"),
+    ):
+        pass
+    assert db.read_bytes() == before  # left as it was
+    db.write_bytes(b"")  # an empty file is a store MLflow creates its tables in
+    assert tracking.tracking_uri() == f"sqlite:///{db}"

@@ -87,7 +87,22 @@ def quick(tmp_path_factory) -> Path:
     workdir = tmp_path_factory.mktemp("quick")
     done = snakemake(workdir)
     assert done.returncode == 0, done.stderr[-5000:]
+    (workdir / "console.txt").write_text(done.stderr)
     return workdir
+
+
+def test_the_console_is_one_line_per_job_start_and_end_and_a_summary(quick):
+    console = (quick / "console.txt").read_text()
+    jobs = sum(expected_job_runs(CFG).values())
+    assert "Shell command" not in console and "reason:" not in console
+    assert max(len(line) for line in console.splitlines()) < 400
+    assert len(re.findall(r"^\S+  start  ", console, re.M)) > jobs  # and the trajectories, report
+    assert re.search(r"done   all  \(\d+ s\)  \[(\d+)/\1, 100%\]$", console, re.M), console[-3000:]
+    assert "report    results/report/index.html" in console
+    assert f"MLflow: {jobs} job runs under workflow run" in console
+    # Snakemake's own log keeps what the console leaves out
+    (log,) = (quick / ".snakemake" / "log").glob("*.snakemake.log")
+    assert "python -m dozerlab simulate" in log.read_text()
 
 
 def test_stores_open_and_nothing_half_written_is_left(quick):
@@ -213,6 +228,33 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
         if r.data.tags["rule"] == "simulate"
     }
     assert sims == {(p.scenario, p.speed, p.depth) for p in POINTS}
+    groups = {
+        "train": "training",
+        "interpolation": "interpolation",
+        "extrapolation": "extrapolation",
+    }
+    for r in children:
+        tags = r.data.tags
+        assert r.info.run_name.startswith(tags["role"] + "/"), r.info.run_name
+        if tags["rule"] == "simulate":
+            point = next(
+                p
+                for p in POINTS
+                if (p.speed, p.depth) == (float(tags["speed"]), float(tags["depth"]))
+            )
+            assert tags["group"] == groups[point.role]
+            assert r.info.run_name == f"simulate/{point.scenario}/{point.name}"
+    assert parent.data.tags["role"] == "parent" and parent.info.run_name == "sweep/quick"
+    # the sweep's headline figures compare sweeps in MLflow's chart view
+    assert {f"force_x_rel_rmse/{m}" for m in MODELS} < set(parent.data.metrics)
+    assert {f"reduced_{m}/height_accuracy" for m in REDUCED} < set(parent.data.metrics)
+    assert parent.data.metrics["wall_seconds"] > 0
+    # every trained model is registered by kind: models:/NAME/VERSION
+    query = f"tags.`dozerlab.parent_run_id` = '{parent.info.run_id}'"
+    names = {v.name for v in client.search_model_versions(query)}
+    assert {f"dozerlab-force-{m}" for m in MODELS} | {
+        f"dozerlab-evolution-{m}" for m in DYNAMICS
+    } < names
 
 
 def test_report_has_table_figures_and_models(quick):
@@ -222,7 +264,7 @@ def test_report_has_table_figures_and_models(quick):
     assert '<div class="note">Smoke test' in text  # quick.yaml: report.smoke_test
     for point in POINTS:
         assert f"{point.scenario} {point.name}: blade trajectory" in text
-        assert f"{point.scenario} {point.name}: blade force (N) and torque" in text
+        assert f"{point.scenario} {point.name}: blade force (kN) and torque" in text
         # the sweep table's wall time is the simulation's own, recorded in its store
         assert xr.open_zarr(P.field_path(quick / "results", point)).attrs["wall_time_s"] > 0
     # sweep map, bed, per point trajectory, slice and force, error chart, per model parity
@@ -307,12 +349,15 @@ def test_killed_simulation_is_redone_cleanly(quick):
     assert not list(store.parent.glob("*.tmp-*"))
 
 
-def _processes() -> dict[int, str]:
-    """pid -> command line of this machine's processes (from /proc)."""
+def _processes(session: int | None = None) -> dict[int, str]:
+    """pid -> command line of this machine's processes (from /proc), or of those in the
+    ``session`` led by that pid."""
     found = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
+                if session is not None and os.getsid(int(entry.name)) != session:
+                    continue
                 found[int(entry.name)] = (
                     (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
                 )
@@ -373,6 +418,32 @@ def test_ctrl_c_during_onstart_is_a_clean_message(tmp_path):
     assert not list((tmp_path / ".snakemake" / "locks").glob("*"))  # no --unlock needed
 
 
+def test_sigterm_stops_the_jobs_as_ctrl_c_does(tmp_path):
+    """Snakemake's own SIGTERM handler let the running jobs finish; the README says SIGTERM
+    stops them like Ctrl-C: the job stops, leaves nothing, the parent run ends FAILED, the lock
+    is released."""
+    bed = tmp_path / P.bed_path("results", "hill")
+    proc = background(tmp_path, str(P.bed_path("results", "hill")))
+    try:
+        deadline = time.monotonic() + 300
+        while not (jobs := [p for p, c in _processes(proc.pid).items() if "dozerlab bed " in c]):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()[-3000:]
+            time.sleep(0.05)
+        time.sleep(1.0)  # into its work
+        proc.send_signal(signal.SIGTERM)  # Snakemake alone, as `kill PID` or a scheduler would
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode != 0, err[-3000:]
+    assert all(_gone(job, within_s=20) for job in jobs), "the bed job ran on"
+    assert not bed.exists() and not list(bed.parent.glob("*.tmp-*"))
+    assert not list((tmp_path / ".snakemake" / "locks").glob("*"))
+    _client, all_runs = runs(tmp_path)
+    assert [r.info.status for r in all_runs if r.data.tags.get("rule") == "workflow"] == ["FAILED"]
+
+
 @pytest.mark.parametrize(
     ("target", "message"),
     [
@@ -418,6 +489,26 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
         assert set(forces) == models
 
 
+def test_the_targets_reach_only_the_comparison_and_the_report(tmp_path):
+    """Changing only reduced.targets re-ran six jobs: a rule reruns when its params (the
+    --config it passes) change, and only compare-reduced and the report read the targets."""
+    quick = yaml.safe_load(QUICK.read_text())
+    commands = {}
+    for name, targets in (("before", {}), ("after", {"force_rmse": 0.5, "loop_speedup": 7})):
+        quick["reduced"]["targets"] = targets
+        cfg = tmp_path / f"{name}.yaml"
+        cfg.write_text(yaml.safe_dump(quick))
+        done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
+        assert done.returncode == 0, done.stderr[-3000:]
+        commands[name] = {}
+        for line in re.findall(r"python -m dozerlab \S+ .*", done.stdout):
+            commands[name].setdefault(line.split()[3], set()).add(line)
+    before, after = commands["before"], commands["after"]
+    assert before.keys() == after.keys()
+    assert {c for c in before if before[c] != after[c]} == {"compare-reduced", "report"}
+    assert {"reduce", "reduce-points", "train", "simulate"} <= before.keys()
+
+
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):
     """docs/architecture.md says why rules have no conda/container directive; nothing else lints."""
     done = snakemake(tmp_path, "--lint")
@@ -446,10 +537,20 @@ def test_quick_config_sets_every_field_the_default_config_sets():
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\.0'.*allowed: >= 1"),
+        ("sampling: {bins: [0, 4, 4]}\n", r"config field 'sampling\.bins\[0\]'.*allowed: >= 1"),
         ("sweep: {speeds: [1.0, 1.0, 1]}\n", r"'sweep\.speeds'.*allowed: each value once"),
-        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\.0'.*allowed: <= 20"),
-        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\.0'.*deeper than the hill bed"),
+        ("sweep: {speeds: [1e9]}\n", r"'sweep\.speeds\[0\]'.*allowed: <= 20"),
+        ("sweep: {depths: [0.34]}\n", r"'sweep\.depths\[0\]'.*deeper than the hill bed"),
+        (
+            "sweep: {depths: [1.0e-250]}\n",
+            r"(?s)bad\.yaml.*'sweep\.depths\[0\]'.*allowed: >= 0\.001",
+        ),
+        ("solver: {dt: .nan}\n", r"(?s)bad\.yaml.*'solver\.dt': nan is not a finite number"),
+        ("learn: {epochs: 3.0}\n", r"'learn\.epochs': 3\.0 is not of type 'integer'"),
+        (
+            "seed: 1\nseed: 2\n",
+            r"bad\.yaml gives the key 'seed' twice in one mapping \(lines 1 and 2",
+        ),
         ("sampling: {bins: [1024, 1024, 1024]}\n", r"sampling\.bins.*GiB of memory"),
     ],
 )

@@ -19,6 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from dozerlab import __version__
+from dozerlab.cliargs import add_command
 from dozerlab.runtime import DozerlabError, die_with_workflow, freeze_heap
 from dozerlab.tracking import STATUSES
 
@@ -30,20 +31,30 @@ COMMAND_MODULES = (
     "dozerlab.learn.cli",
     "dozerlab.learn.dynamics.cli",
     "dozerlab.reduce.cli",
+    "dozerlab.verify",
 )
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """The commands of no layer: ``config``, ``mlflow-start``, ``mlflow-end``, ``mlflow-ingest``."""
-    p = sub.add_parser("config", help="validate a config file and print it complete")
+    p = add_command(
+        sub,
+        "config",
+        "validate a config file and print it complete",
+        "python -m dozerlab config config/quick.yaml",
+    )
     p.add_argument(
         "config", nargs="?", default=None, help="YAML file or inline JSON (default: all defaults)"
     )
     p.set_defaults(func=_config)
 
     # Internal (the Snakefile's hooks call them): no help= keeps them out of `dozerlab --help`.
-    p = sub.add_parser(
-        "mlflow-start", description="start the parent MLflow run of a workflow; print its id"
+    p = add_command(
+        sub,
+        "mlflow-start",
+        "start the parent MLflow run of a workflow; print its id",
+        "python -m dozerlab mlflow-start --config config/quick.yaml --name workflow",
+        listed=False,
     )
     p.add_argument(
         "--experiment",
@@ -59,8 +70,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_mlflow_start)
 
-    p = sub.add_parser(
-        "mlflow-end", description="end a parent MLflow run, logging the artifacts it produced"
+    p = add_command(
+        sub,
+        "mlflow-end",
+        "end a parent MLflow run, logging the artifacts it produced",
+        "python -m dozerlab mlflow-end RUN_ID --status FINISHED --artifact results/report/index.html",
+        listed=False,
     )
     p.add_argument("run_id", help="the id mlflow-start printed")
     p.add_argument("--status", default="FINISHED", choices=STATUSES)
@@ -71,11 +86,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="PATH",
         help="a file to log if this invocation wrote it (repeatable)",
     )
+    p.add_argument(
+        "--metric",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a headline figure of the sweep to log on the run (repeatable)",
+    )
     p.set_defaults(func=_mlflow_end)
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "mlflow-ingest",
-        description="log a workflow's spooled job runs (DOZERLAB_MLFLOW_SPOOL) to MLflow",
+        "log a workflow's spooled job runs (DOZERLAB_MLFLOW_SPOOL) to MLflow",
+        "python -m dozerlab mlflow-ingest RUN_ID --follow",
+        listed=False,
     )
     p.add_argument("run_id", help="the workflow's parent run id")
     p.add_argument(
@@ -93,17 +118,23 @@ def _config(args: argparse.Namespace) -> int:
     return 0
 
 
+def _pairs(items: Sequence[str], flag: str) -> dict[str, str]:
+    """``KEY=VALUE`` arguments of ``flag`` as a dict; a ValueError naming the flag if not."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"{flag} must be KEY=VALUE, got '{item}'")
+        out[key] = value
+    return out
+
+
 def _mlflow_start(args: argparse.Namespace) -> int:
     from dozerlab.config import load_config
     from dozerlab.tracking import start_parent_run
 
     cfg = load_config(args.config)
-    tags = {}
-    for item in args.tag:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--tag must be KEY=VALUE, got '{item}'")
-        tags[key] = value
+    tags = _pairs(args.tag, "--tag")
     experiment = args.experiment or cfg["mlflow"]["experiment"]
     print(start_parent_run(experiment, args.name, config=cfg, tags=tags))
     return 0
@@ -112,8 +143,13 @@ def _mlflow_start(args: argparse.Namespace) -> int:
 def _mlflow_end(args: argparse.Namespace) -> int:
     from dozerlab.tracking import end_parent_run
 
-    for path in end_parent_run(args.run_id, args.status, args.artifact):
-        print(f"logged {path}", file=sys.stderr)
+    metrics = {}
+    for key, value in _pairs(args.metric, "--metric").items():
+        try:
+            metrics[key] = float(value)
+        except ValueError:
+            raise ValueError(f"--metric {key} must be a number, got '{value}'") from None
+    end_parent_run(args.run_id, args.status, args.artifact, metrics)
     return 0
 
 

@@ -9,12 +9,13 @@ the allowed range before any work starts.
 from __future__ import annotations
 
 import copy
+import io
 import json
 import math
 import os
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Hashable, Iterable, Mapping
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -65,8 +66,12 @@ def schema() -> dict[str, Any]:
 
 
 def _with_defaults(cls: type[Validator]) -> type[Validator]:
-    """Extend a jsonschema validator class so that it fills in defaults while validating."""
+    """Extend a jsonschema validator class so that it fills in defaults while validating, takes
+    only whole numbers of type ``int`` as integers (``3.0`` and ``true`` are refused: a count
+    that is a float fails later, far from its field) and refuses NaN and ±inf where a number is
+    asked for (they pass every range check: NaN compares false)."""
     validate_properties = cls.VALIDATORS["properties"]
+    validate_type = cls.VALIDATORS["type"]
 
     def properties(validator, props, instance, sch):
         if isinstance(instance, dict):
@@ -75,7 +80,20 @@ def _with_defaults(cls: type[Validator]) -> type[Validator]:
                     instance.setdefault(name, copy.deepcopy(sub["default"]))
         yield from validate_properties(validator, props, instance, sch)
 
-    return jsonschema.validators.extend(cls, {"properties": properties})
+    def type_(validator, types, instance, sch):
+        if isinstance(instance, float) and not math.isfinite(instance):
+            yield jsonschema.ValidationError(
+                f"{instance} is not a finite number", validator="finite", validator_value=None
+            )
+            return
+        yield from validate_type(validator, types, instance, sch)
+
+    checker = cls.TYPE_CHECKER.redefine(
+        "integer", lambda _, v: isinstance(v, int) and not isinstance(v, bool)
+    )
+    return jsonschema.validators.extend(
+        cls, {"properties": properties, "type": type_}, type_checker=checker
+    )
 
 
 _Validator = _with_defaults(jsonschema.Draft202012Validator)
@@ -90,13 +108,25 @@ def _allowed(error: jsonschema.ValidationError) -> str:
         "maximum": f"allowed: <= {v}",
         "exclusiveMaximum": f"allowed: < {v}",
         "enum": f"allowed: one of {v}",
-        "type": f"allowed: a value of type {v}",
+        "type": "allowed: a whole number, written without a point (3, not 3.0)"
+        if v == "integer"
+        else f"allowed: a value of type {v}",
         "additionalProperties": "allowed: only the fields the schema lists",
         "minItems": f"allowed: at least {v} items",
         "maxItems": f"allowed: at most {v} items",
         "required": f"required fields: {v}",
         "uniqueItems": "allowed: each value once",
+        "finite": "allowed: a finite number",
     }.get(kind, f"constraint {kind}: {v}")
+
+
+def field_name(path: Iterable[str | int]) -> str:
+    """The name of a field in messages: keys dotted, list positions in brackets
+    (``sweep.speeds[0]``, ``sweep.interpolation[1].depth``)."""
+    name = ""
+    for part in path:
+        name += f"[{part}]" if isinstance(part, int) else f".{part}" if name else str(part)
+    return name or "<top level>"
 
 
 #: A number as YAML 1.2 writes it. PyYAML (YAML 1.1, also Snakemake's loader) reads ``1e9``
@@ -132,13 +162,13 @@ def check_cuts(config: Mapping[str, Any]) -> None:
     margin = 2.0 * config["bed"]["radius"]
     sweep = config["sweep"]
     cuts = [
-        (f"sweep.depths.{i}", s, d)
+        (f"sweep.depths[{i}]", s, d)
         for s in sweep["scenarios"]
         for i, d in enumerate(sweep["depths"])
     ]
     for role in ("interpolation", "extrapolation"):
         cuts += [
-            (f"sweep.{role}.{i}.depth", p["scenario"], p["depth"])
+            (f"sweep.{role}[{i}].depth", p["scenario"], p["depth"])
             for i, p in enumerate(sweep[role])
         ]
     for field, scenario, depth in cuts:
@@ -218,10 +248,15 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
         )
     doc = _numbers(copy.deepcopy(dict(config or {})), schema())
     errors = sorted(_Validator(schema()).iter_errors(doc), key=lambda e: list(e.absolute_path))
+    # a non-finite number breaks its bounds too: say only that it is not finite
+    infinite = {tuple(e.absolute_path) for e in errors if e.validator == "finite"}
+    errors = [
+        e for e in errors if e.validator == "finite" or tuple(e.absolute_path) not in infinite
+    ]
     if errors:
         lines = []
         for e in errors:
-            field = ".".join(str(p) for p in e.absolute_path) or "<top level>"
+            field = field_name(e.absolute_path)
             lines.append(f"config field '{field}': {e.message} ({_allowed(e)})")
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
     # A job gets only the sections it reads (the rest are defaults): the sweep's checks apply
@@ -239,25 +274,103 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     return doc
 
 
+class _DuplicateKey(yaml.YAMLError):
+    """A mapping of a YAML document gives ``key`` on ``lines`` (1-based) both."""
+
+    def __init__(self, key: Any, lines: tuple[int, int]) -> None:
+        super().__init__(key, lines)
+        self.key, self.lines = key, lines
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that refuses a key given twice in one mapping (PyYAML keeps the
+    last silently, so a repeated section would drop the first one's fields unseen)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            line = key_node.start_mark.line + 1
+            if isinstance(key, Hashable) and key in seen:
+                raise _DuplicateKey(key, (seen[key], line))
+            if isinstance(key, Hashable):
+                seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+
+def read_yaml(path: str | Path) -> Any:
+    """The YAML document of the configuration file ``path``, not yet validated.
+
+    Raises :class:`ConfigError` naming the file when it is missing, not UTF-8 text, not valid
+    YAML or gives a key twice in one mapping.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"configuration file not found: {path}")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"configuration file {path} is not UTF-8 text (byte {exc.start} is 0x{exc.object[exc.start]:02x}); "
+            "a configuration is a YAML document"
+        ) from None
+    stream = io.StringIO(text)
+    stream.name = str(path)  # PyYAML's messages name the stream
+    try:
+        return yaml.load(stream, Loader=_UniqueKeyLoader)  # a SafeLoader
+    except _DuplicateKey as exc:
+        raise ConfigError(
+            f"configuration file {path} gives the key '{exc.key}' twice in one mapping (lines "
+            f"{exc.lines[0]} and {exc.lines[1]}; allowed: each key once)"
+        ) from None
+    except yaml.YAMLError as exc:
+        detail = " ".join(str(exc).split())
+        raise ConfigError(f"configuration file {path} is not valid YAML: {detail}") from None
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object's pairs as a dict, refusing a key given twice."""
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise ConfigError(
+                f"inline configuration gives the key '{key}' twice (allowed: each key once)"
+            )
+        doc[key] = value
+    return doc
+
+
 def load_config(source: str | Path | Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Load and validate a configuration.
 
     ``source`` is a mapping, a path to a YAML/JSON file, an inline JSON object string (what the
-    workflow's rules pass), or None for all defaults.
+    workflow's rules pass), or None for all defaults. A file's errors name the file.
     """
     if source is None or isinstance(source, Mapping):
         return validate(source)
     text = str(source)
     if text.lstrip().startswith("{"):
         try:
-            return validate(json.loads(text))
+            return validate(json.loads(text, object_pairs_hook=_unique_pairs))
         except json.JSONDecodeError as exc:
             raise ConfigError(f"inline configuration is not valid JSON: {exc}") from exc
-    path = Path(text)
-    if not path.is_file():
-        raise ConfigError(f"configuration file not found: {path}")
+    doc = read_yaml(text)
     try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"configuration file {path} is not valid YAML: {exc}") from None
-    return validate(doc or {})
+        return validate(doc or {})
+    except ConfigError as exc:
+        raise ConfigError(f"configuration file {text}: {exc}") from None
+
+
+def check_value(field: Iterable[str | int], value: Any, what: str | None = None) -> None:
+    """Refuse ``value`` where it breaks the schema of the field at ``field`` (keys and list
+    positions, e.g. ``("sweep", "speeds", 0)``), the one source of every bound: a command-line
+    flag such as ``--speed`` takes what the config's field takes. ``what`` names the value in
+    the message, if given."""
+    field = tuple(field)
+    sub = schema()
+    for part in field:
+        sub = sub["items"] if isinstance(part, int) else sub["properties"][part]
+    for e in _Validator(sub).iter_errors(value):
+        named = field_name(part for part in field if not isinstance(part, int))
+        prefix = f"{what}: " if what else ""
+        raise ConfigError(f"{prefix}{e.message} ({_allowed(e)}, as for config field '{named}')")

@@ -2,14 +2,23 @@
 is loaded (:func:`freeze_heap`), and safe atomic outputs.
 
 Every file or directory a command writes goes through :func:`atomic_output`, which builds it
-in a temporary sibling and renames it into place, and which replaces an existing path only when
-that path is what the command writes (its :class:`OutputKind` recognises it by its own marker or
-schema). Anything else found there is refused and left as it was: a mistyped ``--out`` never
-costs a user their data.
+whole in a temporary sibling and renames it into place, and which replaces an existing path only
+when that path is what the same command wrote before (its :class:`OutputKind` recognises it by
+the mark naming that command, or by a schema only it writes). Anything else found there is
+refused and left as it was: a mistyped ``--out`` never costs a user their data.
+
+Every job starts inside :func:`job_outputs`, which checks all of the command's outputs before
+any work (each one replaceable, its folder writable, no file in the way, names not too long)
+and, should the job fail after all, takes back what it had already moved into place, so that a
+command that fails leaves nothing behind. Names that become parts of paths pass
+:func:`check_name`.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import errno
 import gc
 import glob
 import json
@@ -153,6 +162,47 @@ def die_with_workflow(poll_s: float = 1.0) -> bool:
     return True
 
 
+def _group_descendants(pid: int) -> list[int]:
+    """The descendants of ``pid`` in this process's process group, parents first (Linux
+    ``/proc``; none where it is missing)."""
+    children: dict[int, list[int]] = {}
+    group = os.getpgrp()
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue  # ended meanwhile
+        ppid, pgrp = (int(f) for f in stat[stat.rindex(")") + 2 :].split()[1:3])
+        if pgrp == group:
+            children.setdefault(ppid, []).append(int(entry.name))
+    found, todo = [], list(children.get(pid, []))
+    while todo:
+        found.append(child := todo.pop(0))
+        todo += children.get(child, [])
+    return found
+
+
+def sigterm_as_ctrl_c() -> None:
+    """Make SIGTERM to this process (the workflow's Snakemake) do what Ctrl-C does.
+
+    Snakemake 9 takes SIGTERM as "finish the running jobs, then exit", while Ctrl-C (SIGINT to
+    the terminal's whole process group) stops the jobs at once, removes their outputs and ends
+    the parent MLflow run FAILED. From here on SIGTERM sends SIGINT to this process's children
+    in its process group (the local jobs, as Ctrl-C would reach them; a job of its own session,
+    like the MLflow follower, is left to the hooks) and raises KeyboardInterrupt here, where
+    Snakemake handles it as Ctrl-C (a remote executor then cancels its jobs). Call from the
+    main thread, after Snakemake installed its own handler (in ``onstart``).
+    """
+
+    def interrupt(signum: int, frame: object) -> None:
+        for pid in _group_descendants(os.getpid()):
+            with contextlib.suppress(ProcessLookupError):  # ended meanwhile
+                os.kill(pid, signal.SIGINT)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+
+
 #: The marker dozerlab writes into outputs that have room for one (PNG text, GIF comment, HTML).
 MARK = "dozerlab"
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -162,16 +212,27 @@ class OutputExistsError(DozerlabError):
     """An output path holds something the command did not write; it is left untouched."""
 
 
+class OutputPathError(DozerlabError):
+    """An output cannot be written where it was asked for (a folder not writable, a file in the
+    way, a name too long); found before the work, nothing written."""
+
+
 @dataclass(frozen=True)
 class OutputKind:
     """What a command writes, and how to recognise one written before (so only that is replaced).
 
     ``what`` names it in messages ("a dozerlab field store"); ``recognise(path)`` is True when
-    the existing ``path`` is such an output. It must not raise.
+    the existing ``path`` is such an output. It must not raise. ``name`` is the mark a writer
+    records in outputs that have room for one (a store attribute, a bed's metadata, a PNG text,
+    a folder's mark file), naming the command or part of it that wrote the output; ``mark(tmp)``,
+    when given, marks the finished temporary before it is moved into place
+    (:func:`marked_folder`).
     """
 
     what: str
     recognise: Callable[[Path], bool]
+    name: str = ""
+    mark: Callable[[Path], None] | None = None
 
 
 def check_output(path: str | Path, kind: OutputKind | None) -> None:
@@ -197,16 +258,36 @@ def check_output(path: str | Path, kind: OutputKind | None) -> None:
         )
 
 
+@dataclass
+class _Group:
+    """The outputs of one job (:func:`job_outputs`): those declared, those already moved into
+    place (with the earlier output each replaced, kept aside until the job succeeds)."""
+
+    declared: set[Path]
+    placed: list[tuple[Path, Path | None]]
+
+
+_GROUP: contextvars.ContextVar[_Group | None] = contextvars.ContextVar("dozerlab_outputs")
+
+
+def _sibling(final: Path, tag: str, pid: int | None = None) -> Path:
+    """``.NAME.{tag}-HOST-PID``: a temporary (``tmp``) or a kept earlier output (``old``)."""
+    return final.with_name(f".{final.name}.{tag}-{socket.gethostname()}-{pid or os.getpid()}")
+
+
 @contextmanager
 def atomic_output(path: str | Path, kind: OutputKind | None = None) -> Iterator[Path]:
     """Yield a temporary sibling of ``path`` to write into; rename it to ``path`` on success.
 
-    Works for files and directories (zarr stores). An existing ``path`` is replaced only if
-    ``kind`` recognises it as an output of the same kind (:func:`check_output`, checked on entry
-    and again before the rename); otherwise :class:`OutputExistsError` is raised and ``path`` is
-    left as it was. On any exception the temporary is removed, so no half-written output is
-    ever mistaken for a result. The temporary is ``.NAME.tmp-HOST-PID``; one left by a writer
-    on this host that was killed outright (its PID no longer runs) is removed on the next write.
+    Works for files and directories (zarr stores, folders of figures). An existing ``path`` is
+    replaced only if ``kind`` recognises it as an output of the same kind (:func:`check_output`,
+    checked on entry and again before the rename); otherwise :class:`OutputExistsError` is
+    raised and ``path`` is left as it was. A ``kind`` with a ``mark`` marks the temporary before
+    the rename. On any exception the temporary is removed, so no half-written output is ever
+    mistaken for a result. The temporary is ``.NAME.tmp-HOST-PID``; one left by a writer on this
+    host that was killed outright (its PID no longer runs) is removed on the next write. Inside
+    :func:`job_outputs`, an output it declared is moved into place with the earlier one kept
+    aside (``.NAME.old-HOST-PID``) until the job ends.
     """
     final = Path(path)
     check_output(final, kind)
@@ -216,21 +297,169 @@ def atomic_output(path: str | Path, kind: OutputKind | None = None) -> Iterator[
         raise OutputExistsError(
             f"cannot write {final}: a file is in the way of its directory {final.parent}"
         ) from None
-    prefix = f".{final.name}.tmp-{socket.gethostname()}-"
-    # Temporaries of earlier writers on this host that died without cleaning up (SIGKILL).
-    for stale in final.parent.glob(glob.escape(prefix) + "*"):
-        pid = stale.name[len(prefix) :]
-        if pid.isdigit() and process_token(int(pid)) is None:
-            _remove(stale)
-    tmp = final.with_name(f"{prefix}{os.getpid()}")
+    # Temporaries and kept outputs of earlier writers on this host that died (SIGKILL).
+    for tag in ("tmp", "old"):
+        prefix = _sibling(final, tag).name.rsplit("-", 1)[0] + "-"
+        for stale in final.parent.glob(glob.escape(prefix) + "*"):
+            pid = stale.name[len(prefix) :]
+            if pid.isdigit() and process_token(int(pid)) is None:
+                _remove(stale)
+    tmp = _sibling(final, "tmp")
     _remove(tmp)
     try:
         yield tmp
+        if kind is not None and kind.mark is not None and tmp.exists():
+            kind.mark(tmp)
         check_output(final, kind)
-        _remove(final)
-        os.replace(tmp, final)
+        group = _GROUP.get(None)
+        if group is not None and final.absolute() in group.declared:
+            kept = None
+            if final.exists() or final.is_symlink():
+                kept = _sibling(final, "old")
+                _remove(kept)
+                os.replace(final, kept)
+            os.replace(tmp, final)
+            group.placed.append((final, kept))
+        else:
+            _remove(final)
+            os.replace(tmp, final)
     finally:
         _remove(tmp)
+
+
+def check_name(value: str, argument: str) -> str:
+    """Refuse a name that becomes one component of a path (a model, a scenario) unless it is
+    one: not empty, no ``/`` or ``\\``, not ``.`` or ``..``, no NUL, at most 255 bytes.
+    ``argument`` names where it came from (``--dynamics-model``). Returns ``value``."""
+    text = str(value)
+    checks = (
+        (not text, "is empty"),
+        (text in (".", ".."), "is not a name"),
+        ("/" in text or "\\" in text, "holds a path separator"),
+        ("\0" in text, "holds a NUL character"),
+        (len(os.fsencode(text)) > 255, "is longer than 255 bytes"),
+    )
+    bad = next((reason for failed, reason in checks if failed), "")
+    if bad:
+        raise DozerlabError(
+            f"{argument} {text!r} {bad}: it names a file or folder, so it must be a plain name, "
+            "not a path"
+        )
+    return text
+
+
+#: Bytes kept free under the path length limit for what a folder output holds inside.
+_INNER_PATH_BYTES = 64
+
+
+def check_output_path(path: str | Path, argument: str = "") -> list[Path]:
+    """Refuse an output path that cannot be written, before any work: a file (or a broken link)
+    in the way of its folder, the nearest existing folder not writable, a name longer than the
+    file system allows (also the temporary's, ``.NAME.tmp-HOST-PID``), a path too long.
+    ``argument`` (``--out``) is named in the message. Returns the folders that writing it
+    will create, nearest first."""
+    p = Path(path)
+
+    def refuse(reason: str) -> OutputPathError:
+        where = f" ({argument})" if argument else ""
+        return OutputPathError(f"cannot write {p}{where}: {reason}; nothing was written")
+
+    if not p.name or p.name in (".", ".."):
+        raise refuse("it names no file or folder")
+    missing: list[Path] = []
+    folder = p.parent
+    try:
+        while not folder.exists():
+            if folder.is_symlink():
+                raise refuse(f"{folder} is a broken link, in the way of its folder")
+            if folder == folder.parent:
+                raise refuse(f"no part of {folder} exists")
+            missing.append(folder)
+            folder = folder.parent
+    except OSError as exc:  # the path is too long to look at
+        if exc.errno != errno.ENAMETOOLONG:
+            raise
+        size = len(os.fsencode(str(p)))
+        raise refuse(f"the path is {size} bytes, more than the bytes a path may have") from None
+    if not folder.is_dir():
+        raise refuse(f"{folder} is a file, not a folder: it is in the way of the output's folder")
+    if not os.access(
+        folder, os.W_OK | os.X_OK, effective_ids=os.access in os.supports_effective_ids
+    ):
+        raise refuse(f"the folder {folder.absolute()} is not writable")
+    name_max, path_max = _limit(folder, "PC_NAME_MAX", 255), _limit(folder, "PC_PATH_MAX", 4096)
+    longest = _sibling(p, "tmp")
+    for part in (*p.parts, longest.name):
+        if len(os.fsencode(part)) > name_max:
+            raise refuse(
+                f"the name {part[:40]}… is {len(os.fsencode(part))} bytes, longer than the "
+                f"{name_max} bytes a name may have here (with the temporary's "
+                f".NAME.tmp-HOST-PID around it)"
+            )
+    length = len(os.fsencode(str(longest)))
+    if length + _INNER_PATH_BYTES >= path_max:
+        raise refuse(f"the path is {length} bytes, too near the {path_max} bytes a path may have")
+    return missing
+
+
+def _limit(folder: Path, name: str, default: int) -> int:
+    try:
+        return int(os.pathconf(folder, name))
+    except (OSError, ValueError):
+        return default
+
+
+#: An output of a job: (the argument naming it, its path or None, its kind).
+Declared = tuple[str, str | Path | None, OutputKind | None]
+
+
+@contextmanager
+def job_outputs(*outputs: Declared) -> Iterator[None]:
+    """Check all of a job's outputs before its work, and make them one: all or nothing.
+
+    ``outputs`` are ``(argument, path, kind)``; a ``None`` path is skipped. Before the body
+    runs, every path must be writable (:func:`check_output_path`) and absent or an earlier
+    output of ``kind`` (:func:`check_output`), and no two may be the same path or one inside
+    the other; the first that fails raises, naming its argument and path, and nothing has been
+    written. Should the body fail, every declared output that :func:`atomic_output` already
+    moved into place is removed and the earlier output it replaced put back, and the folders
+    made for them are removed if empty: a failed command leaves nothing behind.
+    """
+    items = [(arg, Path(path), kind) for arg, path, kind in outputs if path is not None]
+    created: list[Path] = []
+    for arg, path, kind in items:
+        created += check_output_path(path, arg)
+        check_output(path, kind)
+    where = {arg: path.absolute() for arg, path, _ in items}
+    for i, (a, pa) in enumerate(where.items()):
+        for b, pb in list(where.items())[i + 1 :]:
+            if pa == pb or pa in pb.parents or pb in pa.parents:
+                raise OutputPathError(
+                    f"{a} ({pa}) and {b} ({pb}) would overwrite each other: "
+                    "give them separate paths; nothing was written"
+                )
+    group = _Group({p.absolute() for _, p, _ in items}, [])
+    token = _GROUP.set(group)
+    try:
+        yield
+    except BaseException:
+        for final, kept in reversed(group.placed):
+            _remove(final)
+            if kept is not None:
+                os.replace(kept, final)
+        for folder in sorted(set(created), key=lambda f: len(f.parts), reverse=True):
+            try:
+                folder.rmdir()
+            except OSError as exc:  # not empty (another writer's), or already gone
+                if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOENT):
+                    raise
+        raise
+    else:
+        for _, kept in group.placed:
+            if kept is not None:
+                _remove(kept)
+    finally:
+        _GROUP.reset(token)
 
 
 def _remove(p: Path) -> None:
@@ -243,29 +472,47 @@ def _remove(p: Path) -> None:
 # Recognisers shared by several layers' kinds. Each reads only a file's head.
 
 
-def png_metadata() -> dict[str, str]:
-    """``savefig(..., metadata=png_metadata())``: the PNG text that marks a figure as ours."""
-    return {"Software": MARK}
+#: The PNG text keyword naming the output a figure is (:func:`png_metadata`, :func:`marked_png`).
+PNG_OUTPUT_KEY = "dozerlab-output"
+
+
+def png_metadata(name: str = "") -> dict[str, str]:
+    """``savefig(..., metadata=png_metadata())``: the PNG text that marks a figure as ours; with
+    ``name``, also which output it is (an :class:`OutputKind`'s ``name``, :func:`marked_png`)."""
+    return {"Software": MARK} | ({PNG_OUTPUT_KEY: name} if name else {})
+
+
+def _png_texts(path: Path) -> list[bytes]:
+    """The data of a PNG file's text chunks before its image data ([] for anything else)."""
+    texts: list[bytes] = []
+    if not path.is_file():
+        return texts
+    with open(path, "rb") as f:
+        if f.read(8) != _PNG_MAGIC:
+            return texts
+        while header := f.read(8):
+            if len(header) < 8:
+                break
+            length, ctype = int.from_bytes(header[:4], "big"), header[4:]
+            if ctype in (b"IDAT", b"IEND"):
+                break
+            data = f.read(length)
+            if ctype in (b"tEXt", b"iTXt", b"zTXt"):
+                texts.append(data)
+            f.seek(4, os.SEEK_CUR)  # the chunk's CRC
+    return texts
 
 
 def is_marked_png(path: Path) -> bool:
     """A PNG file whose text chunks (before the image data) carry :data:`MARK`."""
-    if not path.is_file():
-        return False
-    with open(path, "rb") as f:
-        if f.read(8) != _PNG_MAGIC:
-            return False
-        while header := f.read(8):
-            if len(header) < 8:
-                return False
-            length, ctype = int.from_bytes(header[:4], "big"), header[4:]
-            if ctype in (b"IDAT", b"IEND"):
-                return False
-            data = f.read(length)
-            if ctype in (b"tEXt", b"iTXt", b"zTXt") and MARK.encode() in data:
-                return True
-            f.seek(4, os.SEEK_CUR)  # the chunk's CRC
-    return False
+    return any(MARK.encode() in data for data in _png_texts(path))
+
+
+def marked_png(what: str, name: str) -> OutputKind:
+    """The kind of a PNG figure that one command writes on its own (``bed --plot``), saved with
+    ``png_metadata(name)``: recognised by that text only, not by another command's figure."""
+    entry = PNG_OUTPUT_KEY.encode() + b"\0" + name.encode()
+    return OutputKind(what, lambda path: entry in _png_texts(path), name)
 
 
 def is_marked_gif(path: Path) -> bool:
@@ -317,27 +564,59 @@ def npz_with(keys: Collection[str]) -> Callable[[Path], bool]:
     return recognise
 
 
-def json_with(keys: Collection[str]) -> Callable[[Path], bool]:
-    """A recogniser of JSON files holding an object with (at least) ``keys``."""
+def json_with(keys: Collection[str], without: Collection[str] = ()) -> Callable[[Path], bool]:
+    """A recogniser of JSON files holding an object with (at least) ``keys`` and none of
+    ``without`` (the keys that tell another command's JSON apart)."""
 
     def recognise(path: Path) -> bool:
         if not path.is_file():
             return False
         doc = json.loads(path.read_text())
-        return isinstance(doc, dict) and set(keys) <= doc.keys()
+        return isinstance(doc, dict) and set(keys) <= doc.keys() and not set(without) & doc.keys()
 
     return recognise
 
 
-def is_figure_dir(path: Path) -> bool:
-    """A directory of figures and animations this package wrote, and nothing else."""
-    if not path.is_dir():
-        return False
-    files = [p for p in path.rglob("*") if p.is_file()]
-    return all(is_marked_png(p) or is_marked_gif(p) for p in files)
+#: The file that marks a folder as one of ours (:func:`marked_folder`).
+FOLDER_MARK = ".dozerlab-output.json"
+#: What Snakemake adds to a ``directory()`` output when its job ends: not the user's, so a
+#: folder of ours that the workflow wrote stays ours.
+SNAKEMAKE_TIMESTAMP = ".snakemake_timestamp"
+
+
+def _entries(root: Path) -> list[str]:
+    """Every file, folder and link under ``root`` (links not followed), as relative paths."""
+    found = []
+    for folder, dirs, files in os.walk(root):
+        rel = Path(folder).relative_to(root)
+        found += [(rel / n).as_posix() for n in (*dirs, *files)]
+    return sorted(found)
+
+
+def marked_folder(what: str, name: str) -> OutputKind:
+    """The kind of a folder that a command writes whole (figures, snapshots).
+
+    Its mark, :data:`FOLDER_MARK` inside it, names the output (``name``) and lists every entry
+    the command wrote. An existing folder is recognised only if its mark names ``name`` and it
+    holds nothing the mark does not list (but Snakemake's :data:`SNAKEMAKE_TIMESTAMP`): a user's
+    folder, one of another command, or one of ours that a user has since added a file to is not
+    replaced. An empty folder is not ours either.
+    """
+
+    def recognise(path: Path) -> bool:
+        if path.is_symlink() or not path.is_dir():
+            return False
+        doc = json.loads((path / FOLDER_MARK).read_text())
+        listed = set(doc["entries"]) | {FOLDER_MARK, SNAKEMAKE_TIMESTAMP}
+        return doc.get("output") == name and set(_entries(path)) <= listed
+
+    def mark(tmp: Path) -> None:
+        doc = {"generator": MARK, "output": name, "entries": _entries(tmp)}
+        (tmp / FOLDER_MARK).write_text(json.dumps(doc, indent=1))
+
+    return OutputKind(what, recognise, name, mark)
 
 
 #: Figures every layer writes (matplotlib PNGs saved with :func:`png_metadata`).
 FIGURE = OutputKind("a PNG figure written by dozerlab", is_marked_png)
 ANIMATION = OutputKind("a GIF animation written by dozerlab", is_marked_gif)
-FIGURE_DIR = OutputKind("a folder of dozerlab figures", is_figure_dir)

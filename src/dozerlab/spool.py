@@ -9,6 +9,7 @@ parent run's ``DOZERLAB_PARENT_RUN_ID`` — writes it as a folder, without impor
     <spool>/<parent run id>/<record>/run.json        name, tags, params, metrics, times, status
     <spool>/<parent run id>/<record>/artifacts/...   copies of the files the job logged
     <spool>/<parent run id>/<record>/model/...       a copy of the model directory it logged
+    <spool>/<parent run id>/groups.json              the sweep's points: their group (mlflow-start)
 
 A job's folder is ``.open-<record>`` while it runs and ``<record>`` once its status is known.
 One process logs the finished ones as MLflow child runs of the parent, with the job's own start
@@ -19,6 +20,11 @@ was killed outright). A record is removed only after its run is complete in MLfl
 half-logged by an ingestion that was cut off is replaced (each run carries its record's name as
 the ``dozerlab.record`` tag): nothing is lost or logged twice. ``mlflow-start`` logs the records
 that a killed workflow left.
+
+Ingestion also adds what a job does not know: the ``group`` of its sweep point (``training``,
+``interpolation`` or ``extrapolation``, from ``groups.json``) with ``held_out`` (``true`` or
+``false``) on runs tagged with a point, and it registers a logged model in the MLflow Model
+Registry under the name the job gave (:func:`register_model`).
 """
 
 from __future__ import annotations
@@ -42,6 +48,13 @@ RECORD_TAG = "dozerlab.record"
 OPEN_PREFIX = ".open-"
 RUN_FILE = "run.json"
 MODEL_DIR = "model"
+GROUPS_FILE = "groups.json"
+#: A sweep point's role (:mod:`dozerlab.sweep`) as the ``group`` tag of its runs.
+GROUP_OF_ROLE = {
+    "train": "training",
+    "interpolation": "interpolation",
+    "extrapolation": "extrapolation",
+}
 #: MLflow's limits on one ``log_batch`` call.
 PARAMS_PER_BATCH, METRICS_PER_BATCH = 100, 1000
 
@@ -86,10 +99,13 @@ class SpooledRun:
         dest = self.folder / "artifacts" / (artifact_path or "")
         shutil.copytree(directory, dest, dirs_exist_ok=True)
 
-    def log_model(self, directory: str | Path) -> str:
-        """Record the saved MLflow model ``directory`` as the run's model; its ``models:/`` URI
-        is known once it is logged, so "" here."""
+    def log_model(self, directory: str | Path, registered_name: str | None = None) -> str:
+        """Record the saved MLflow model ``directory`` as the run's model, to be registered as
+        a version of ``registered_name`` when given; its ``models:/`` URI is known once it is
+        logged, so "" here."""
         shutil.copytree(directory, self.folder / MODEL_DIR)
+        if registered_name:
+            self.doc["registered_model"] = registered_name
         return ""
 
     def save(self) -> None:
@@ -168,6 +184,7 @@ def log_record(client: Any, experiment_id: str, parent: str, folder: Path) -> st
     from mlflow.tracking.context.registry import resolve_tags
 
     doc = _load(folder)
+    doc["tags"].update(group_tags(folder.parent, doc["tags"]))
     status, end = doc["status"], doc["end_time"]
     if status == "RUNNING":
         status, end = "KILLED", int((folder / RUN_FILE).stat().st_mtime * 1000)
@@ -187,9 +204,62 @@ def log_record(client: Any, experiment_id: str, parent: str, folder: Path) -> st
     if (folder / "artifacts").is_dir():
         client.log_artifacts(run_id, str(folder / "artifacts"))
     if (folder / MODEL_DIR).is_dir():
-        log_model_dir(client, experiment_id, run_id, folder / MODEL_DIR)
+        uri = log_model_dir(client, experiment_id, run_id, folder / MODEL_DIR)
+        if doc.get("registered_model") and status == "FINISHED":
+            register_model(client, doc["registered_model"], uri, run_id, parent)
     client.set_terminated(run_id, status=status, end_time=end)
     return run_id
+
+
+def register_model(
+    client: Any, name: str, model_uri: str, run_id: str, parent: str | None = None
+) -> int:
+    """Register the logged model ``model_uri`` (``models:/<model id>``) as a new version of
+    ``name`` in the MLflow Model Registry, creating ``name`` if needed; return the version.
+
+    The version is tagged with its run and, under a workflow, the parent run, so
+    ``models:/NAME/VERSION`` leads back to the sweep that trained it."""
+    from mlflow.exceptions import MlflowException
+
+    try:
+        client.create_registered_model(name)
+    except MlflowException as exc:
+        if exc.error_code not in ("RESOURCE_ALREADY_EXISTS", "ALREADY_EXISTS"):
+            raise
+    tags = {"dozerlab.run_id": run_id} | ({"dozerlab.parent_run_id": parent} if parent else {})
+    version = client.create_model_version(
+        name,
+        source=model_uri,
+        run_id=run_id,
+        tags=tags,
+        model_id=model_uri.removeprefix("models:/"),
+    )
+    return int(version.version)
+
+
+def write_groups(root: Path, parent: str, groups: Mapping[str, str]) -> None:
+    """Record the group of each sweep point (``scenario/speed~S_depth~D``: ``training``,
+    ``interpolation`` or ``extrapolation``) for the ingestion of ``parent``'s records."""
+    (root / parent).mkdir(parents=True, exist_ok=True)
+    _write_json(root / parent / GROUPS_FILE, dict(groups))
+
+
+def group_tags(base: Path, tags: Mapping[str, str]) -> dict[str, str]:
+    """The ``group`` and ``held_out`` tags of a run tagged with a sweep point (``scenario``,
+    ``speed``, ``depth``) that ``base/groups.json`` names; none otherwise."""
+    from dozerlab.sweep import point_name
+
+    path = base / GROUPS_FILE
+    if not path.is_file() or not {"scenario", "speed", "depth"} <= set(tags):
+        return {}
+    try:
+        key = f"{tags['scenario']}/{point_name(float(tags['speed']), float(tags['depth']))}"
+    except ValueError:
+        return {}
+    group = json.loads(path.read_text()).get(key)
+    if group is None:
+        return {}
+    return {"group": group, "held_out": str(group != GROUP_OF_ROLE["train"]).lower()}
 
 
 def log_model_dir(client: Any, experiment_id: str, run_id: str, directory: str | Path) -> str:
@@ -225,6 +295,15 @@ def ingest(client: Any, root: Path, parent: str, *, with_open: bool) -> int:
 def _log_and_remove(client: Any, parent: str, folder: Path) -> None:
     log_record(client, client.get_run(parent).info.experiment_id, parent, folder)
     shutil.rmtree(folder)
+
+
+def clear(root: Path, parent: str) -> None:
+    """Remove ``parent``'s spool folder if it holds no record (its groups file goes with it)."""
+    base = root / parent
+    if base.is_dir() and not pending(root, parent, with_open=True):
+        (base / GROUPS_FILE).unlink(missing_ok=True)
+        if not any(base.iterdir()):
+            base.rmdir()
 
 
 def parents(root: Path) -> list[str]:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from dozerlab.runtime import ConfigError
+from dozerlab.runtime import ConfigError, check_name
 
 ROLES = ("train", "interpolation", "extrapolation")
 #: What a speed or depth looks like in a path.
@@ -115,7 +115,7 @@ def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
             point = SweepPoint(item["scenario"], float(item["speed"]), float(item["depth"]), role)
             if point.key in seen:
                 raise ConfigError(
-                    f"config field 'sweep.{role}.{i}': {point.scenario} {point.name} is already in the "
+                    f"config field 'sweep.{role}[{i}]': {point.scenario} {point.name} is already in the "
                     f"{seen[point.key]} (allowed: a point outside the training grid, listed once)"
                 )
             seen[point.key] = f"sweep.{role}"
@@ -158,6 +158,7 @@ PATHS = {
     "dynamics_validation": "dynamics/{model}.json",
     "dynamics_plots": "dynamics/plots/{model}",
     "report": "report/index.html",
+    "report_dir": "report",
 }
 #: The workflow's results directory (relative to its working directory).
 RESULTS = "results"
@@ -174,7 +175,13 @@ def pattern(kind: str, results: str | Path = RESULTS) -> str:
 
 
 def _path(kind: str, results: str | Path, point: SweepPoint | None = None, **names: str) -> Path:
+    """``results``/``PATHS[kind]`` filled with the point's numbers and ``names``, each of which
+    (a scenario, a model) must be a plain name (:func:`~dozerlab.runtime.check_name`), so
+    that no name leads outside ``results``."""
+    for wildcard, value in names.items():
+        check_name(value, wildcard)
     if point is not None:
+        check_name(point.scenario, "scenario")
         names |= {
             "scenario": point.scenario,
             "speed": fmt_number(point.speed),

@@ -16,6 +16,17 @@ parallel jobs; it exports the run id as ``DOZERLAB_PARENT_RUN_ID``. ``onsuccess`
 end it FINISHED / FAILED (:func:`end_parent_run`, ``dozerlab mlflow-end``) and attach the
 artifacts (the report, Snakemake's log) that this invocation wrote.
 
+Every run carries a ``role`` tag (``parent``, ``bed``, ``simulate``, ``train``, ``validate``,
+``reduce``, ``compare``; :data:`ROLES`) beside its ``rule``, and a name in one style,
+``<role>/<what>[/<point>]`` (:func:`run_name`): ``simulate/hill/speed~1_depth~0.04``,
+``train/force/unet``, ``validate/evolution/ridge``, ``reduce/ridge/hill/speed~1.25_depth~0.06``,
+``compare/ridge``, the parent ``sweep/<config file>``. A trained model is registered in the
+MLflow Model Registry as ``<experiment>-force-<model>`` or ``<experiment>-evolution-<model>``
+(the loop's force model ``<experiment>-force-<model>-loop-<dynamics model>``;
+:func:`registered_name`), one version per training, so ``models:/NAME/VERSION`` loads it. The
+parent run ends with the sweep's headline figures as metrics (:mod:`dozerlab.headline`) and its
+wall time.
+
 A Snakemake killed outright (SIGKILL, a lost node) ends nothing: its run would stay RUNNING.
 So the parent run carries the workflow process's host, pid and start time as tags, and the next
 ``mlflow-start`` closes, as KILLED, every RUNNING parent run whose process on this host is gone.
@@ -36,7 +47,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from dozerlab import spool
-from dozerlab.runtime import process_token, workflow_process
+from dozerlab.runtime import DozerlabError, process_token, workflow_process
 from dozerlab.spool import spool_root, spooled_run
 
 PARENT_ENV = "DOZERLAB_PARENT_RUN_ID"
@@ -50,6 +61,33 @@ HOST_TAG, PID_TAG, TOKEN_TAG = "dozerlab.host", "dozerlab.pid", "dozerlab.pid_st
 WAIT_ENV = "DOZERLAB_MLFLOW_WAIT"
 DEFAULT_WAIT_S = 120.0
 MAX_WAIT_S = 86400.0
+#: The ``role`` tag of each rule's job runs; the workflow's own run is the ``parent``.
+ROLES = {
+    "bed": "bed",
+    "simulate": "simulate",
+    "train": "train",
+    "train_dynamics": "train",
+    "train_loop_force": "train",
+    "validate": "validate",
+    "validate_dynamics": "validate",
+    "reduce": "reduce",
+    "reduce_training_points": "reduce",
+    "compare_reduced": "compare",
+}
+PARENT_ROLE = "parent"
+
+
+def run_name(*parts: object) -> str:
+    """A run's name: its parts (role first, then what it is about, then its point) joined by
+    ``/``; empty parts are left out."""
+    return "/".join(str(p) for p in parts if p not in (None, ""))
+
+
+def registered_name(config: Mapping[str, Any] | None, family: str, model: str) -> str:
+    """The Model Registry name of a trained model: ``<experiment>-<family>-<model>``
+    (``family``: ``force`` or ``evolution``; the experiment from the config's ``mlflow``)."""
+    experiment = (config or {}).get("mlflow", {}).get("experiment", "dozerlab")
+    return f"{experiment}-{family}-{model}"
 
 
 class TrackingServerUnreachable(RuntimeError):
@@ -78,6 +116,38 @@ def _store_lock(uri: str) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+#: The first bytes of every SQLite database file.
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def tracking_uri() -> str:
+    """The tracking store's URI (``MLFLOW_TRACKING_URI``, default :data:`DEFAULT_URI`).
+
+    A local SQLite store that exists but is not an SQLite database (a garbage or truncated
+    ``mlflow.db``) is refused with :class:`~dozerlab.runtime.DozerlabError` naming the file,
+    before MLflow opens it and fails with a database traceback.
+    """
+    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    prefix = "sqlite:///"
+    if uri.startswith(prefix):
+        path = Path(uri[len(prefix) :])
+        try:
+            with open(path, "rb") as db:
+                head = db.read(len(_SQLITE_MAGIC))
+        except FileNotFoundError:
+            return uri  # MLflow creates it
+        except OSError as exc:
+            raise DozerlabError(
+                f"MLflow tracking store {path} cannot be read: {exc.strerror}"
+            ) from None
+        if head and head != _SQLITE_MAGIC:
+            raise DozerlabError(
+                f"MLflow tracking store {path} is not an SQLite database (it does not start with "
+                "'SQLite format 3'); move it away, or set MLFLOW_TRACKING_URI to another store"
+            )
+    return uri
 
 
 def wait_limit() -> float:
@@ -134,7 +204,7 @@ def configure(experiment: str = "dozerlab", parent: str | None = None) -> str:
     """
     import mlflow
 
-    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    uri = tracking_uri()
     wait_for_server(uri, wait_limit())
     mlflow.set_tracking_uri(uri)
     with _store_lock(uri):
@@ -165,8 +235,9 @@ class JobRun(Protocol):
 
     def log_artifacts(self, directory: str | Path, artifact_path: str | None = None) -> None: ...
 
-    def log_model(self, directory: str | Path) -> str:
-        """Log a saved MLflow model directory as the run's model; its URI, or "" if not yet."""
+    def log_model(self, directory: str | Path, registered_name: str | None = None) -> str:
+        """Log a saved MLflow model directory as the run's model, registered as a new version
+        of ``registered_name`` when given; its URI, or "" if not yet."""
         ...
 
 
@@ -191,12 +262,15 @@ class LiveRun:
 
         mlflow.log_artifacts(str(directory), artifact_path=artifact_path)
 
-    def log_model(self, directory: str | Path) -> str:
+    def log_model(self, directory: str | Path, registered_name: str | None = None) -> str:
         from mlflow import MlflowClient
 
-        return spool.log_model_dir(
-            MlflowClient(), self.info.experiment_id, self.info.run_id, directory
-        )
+        client = MlflowClient()
+        uri = spool.log_model_dir(client, self.info.experiment_id, self.info.run_id, directory)
+        if registered_name:
+            parent = os.environ.get(PARENT_ENV) or None
+            spool.register_model(client, registered_name, uri, self.info.run_id, parent)
+        return uri
 
 
 @contextmanager
@@ -211,8 +285,8 @@ def tracked_run(
     """Open an MLflow run for one job; yields it, or None when tracking is off.
 
     The run goes into ``experiment``, or, under a parent run (``DOZERLAB_PARENT_RUN_ID``), into
-    the parent's experiment. ``tags`` (scenario, speed, depth, model, …) and the ``rule`` tag
-    make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
+    the parent's experiment. ``tags`` (scenario, speed, depth, model, …), the ``rule`` tag and
+    its ``role`` (:data:`ROLES`) make runs filterable in ``mlflow ui``; ``params`` may be nested (config sections) and are
     flattened. A job that raises leaves its run marked FAILED. Under a workflow with a spool
     (``DOZERLAB_MLFLOW_SPOOL``, :mod:`dozerlab.spool`) the run is recorded there, without
     MLflow.
@@ -221,7 +295,8 @@ def tracked_run(
         yield None
         return
     parent = os.environ.get(PARENT_ENV) or None
-    all_tags = {"rule": rule, **{k: str(v) for k, v in (tags or {}).items()}}
+    all_tags = {"rule": rule, "role": ROLES.get(rule, rule)}
+    all_tags |= {k: str(v) for k, v in (tags or {}).items()}
     if os.environ.get("SLURM_JOB_ID"):
         all_tags["slurm_job_id"] = os.environ["SLURM_JOB_ID"]
     root = spool_root()
@@ -305,7 +380,8 @@ def start_parent_run(
             f"closed parent run {run_id} as KILLED: its snakemake process is gone", file=sys.stderr
         )
     ingest_ended(client)
-    all_tags = {"rule": "workflow", "workdir": str(Path.cwd()), **dict(tags or {})}
+    all_tags = {"rule": "workflow", "role": PARENT_ROLE, "workdir": str(Path.cwd())}
+    all_tags |= dict(tags or {})
     if (proc := workflow_process()) is not None:
         all_tags |= {HOST_TAG: socket.gethostname(), PID_TAG: str(proc[0]), TOKEN_TAG: proc[1]}
     outer = os.environ.get(PARENT_ENV)
@@ -316,34 +392,94 @@ def start_parent_run(
         params = [Param(k, v) for k, v in flatten(config).items()]
         for i in range(0, len(params), 100):  # MLflow takes at most 100 params per batch
             client.log_batch(run.info.run_id, params=params[i : i + 100])
+        if (root := spool_root()) is not None and "sweep" in config:
+            spool.write_groups(root, run.info.run_id, point_groups(config))
     return run.info.run_id
 
 
+def point_groups(config: Mapping[str, Any]) -> dict[str, str]:
+    """Each sweep point of the validated ``config`` (``scenario/speed~S_depth~D``) and its
+    group: ``training``, ``interpolation`` or ``extrapolation`` (the held-out ones)."""
+    from dozerlab.sweep import sweep_points
+
+    return {f"{p.scenario}/{p.name}": spool.GROUP_OF_ROLE[p.role] for p in sweep_points(config)}
+
+
 def end_parent_run(
-    run_id: str, status: str = "FINISHED", artifacts: Sequence[str | Path] = ()
+    run_id: str,
+    status: str = "FINISHED",
+    artifacts: Sequence[str | Path] = (),
+    metrics: Mapping[str, float] | None = None,
 ) -> list[Path]:
-    """End the parent run with ``status``, logging each of ``artifacts`` written since it began.
+    """End the parent run with ``status``, logging each of ``artifacts`` written since it began
+    (a file, or a folder, the report's, whose files are logged under its name), ``metrics``
+    (the sweep's headline figures) and ``wall_seconds`` (since the run began).
 
     Paths that do not exist, or that are older than the run (a report this invocation did not
-    rebuild), are skipped. Returns the paths logged.
+    rebuild), are skipped. Prints the paths logged, how many job runs the parent holds and the
+    models this invocation registered. Returns the paths logged.
     """
     if status not in STATUSES:
         raise ValueError(f"status must be one of {STATUSES}, got '{status}'")
     from mlflow import MlflowClient
+    from mlflow.entities import Metric
 
-    client = MlflowClient(tracking_uri=os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI))
-    started = client.get_run(run_id).info.start_time / 1000.0
+    uri = tracking_uri()
+    client = MlflowClient(tracking_uri=uri)
+    run = client.get_run(run_id)
+    started = run.info.start_time / 1000.0
     if (root := spool_root()) is not None:
-        count = spool.ingest(client, root, run_id, with_open=True)
-        print(f"logged {count} job runs of workflow run {run_id}", file=sys.stderr)
-        _remove_if_empty(root / run_id)
+        spool.ingest(client, root, run_id, with_open=True)
+        spool.clear(root, run_id)
     logged = []
     for path in map(Path, artifacts):
         if path.is_file() and path.stat().st_mtime >= started:
             client.log_artifact(run_id, str(path))
             logged.append(path)
+            print(f"MLflow: logged {path} on the workflow run", file=sys.stderr)
+        elif path.is_dir() and _newest(path) >= started:
+            for file in _files(path):  # under the folder's name, as they lie in it
+                where = file.parent.relative_to(path.parent).as_posix()
+                client.log_artifact(run_id, str(file), artifact_path=where)
+            logged.append(path)
+            print(f"MLflow: logged {path} on the workflow run", file=sys.stderr)
+    now = int(time.time() * 1000)
+    figures = {**(metrics or {}), "wall_seconds": now / 1000.0 - started}
+    client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in figures.items()])
     client.set_terminated(run_id, status=status)
+    children = client.search_runs(
+        [run.info.experiment_id],
+        filter_string=f"tags.mlflow.parentRunId = '{run_id}'",
+        max_results=10000,
+    )
+    experiment = client.get_experiment(run.info.experiment_id).name
+    print(
+        f"MLflow: {len(children)} job runs under workflow run {run_id} "
+        f"(experiment {experiment}, {uri})\n        " + registered_summary(client, run_id),
+        file=sys.stderr,
+    )
     return logged
+
+
+def registered_summary(client: Any, parent: str) -> str:
+    """``models registered: NAME vN, …`` for the model versions of workflow run ``parent``."""
+    versions = client.search_model_versions(f"tags.`dozerlab.parent_run_id` = '{parent}'")
+    names = sorted(f"{v.name} v{v.version}" for v in versions)
+    return "models registered: " + (", ".join(names) if names else "none")
+
+
+def _files(folder: Path) -> list[Path]:
+    """The files under ``folder``, without hidden ones (Snakemake's ``.snakemake_timestamp``)."""
+    return sorted(
+        f
+        for f in folder.rglob("*")
+        if f.is_file() and not any(p.startswith(".") for p in f.relative_to(folder).parts)
+    )
+
+
+def _newest(folder: Path) -> float:
+    """The latest modification time (s since the epoch) of the files under ``folder``, 0 if none."""
+    return max((f.stat().st_mtime for f in _files(folder)), default=0.0)
 
 
 def _remove_if_empty(folder: Path) -> None:
@@ -368,7 +504,7 @@ def ingest_ended(client: Any) -> None:
         if status != "RUNNING":
             count = spool.ingest(client, root, parent, with_open=True)
             print(f"logged {count} job runs that workflow run {parent} left", file=sys.stderr)
-            _remove_if_empty(root / parent)
+            spool.clear(root, parent)
 
 
 def _spool_client() -> tuple[Path, Any]:
@@ -378,7 +514,7 @@ def _spool_client() -> tuple[Path, Any]:
     root = spool_root()
     if root is None:
         raise ValueError(f"{spool.SPOOL_ENV} is not set: no spooled job runs to log")
-    uri = os.environ.get("MLFLOW_TRACKING_URI", DEFAULT_URI)
+    uri = tracking_uri()
     wait_for_server(uri, wait_limit())
     return root, MlflowClient(tracking_uri=uri)
 

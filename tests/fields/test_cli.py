@@ -6,10 +6,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import xarray as xr
 
 from dozerlab.cli import main
 from dozerlab.fields.store import write_store
+from dozerlab.runtime import FOLDER_MARK
 from tests.helpers import TINY_RUN
 
 
@@ -18,7 +20,8 @@ def test_plot_fields_defaults_to_four_spread_slices_and_no_animation_on_request(
 ):
     store = write_store(tmp_path / "f.zarr", **store_arrays)
     assert main(["plot-fields", str(store), "--out", str(tmp_path / "p"), "--no-animation"]) == 0
-    names = sorted(p.name for p in (tmp_path / "p").iterdir())
+    names = sorted(p.name for p in (tmp_path / "p").iterdir() if p.name != FOLDER_MARK)
+    assert (tmp_path / "p" / FOLDER_MARK).is_file()  # the folder is marked as plot-fields'
     assert names == [
         "force.png",
         "slice_000000.png",
@@ -64,5 +67,7 @@ def test_simulate_with_a_missing_bed_names_it_and_writes_nothing(tmp_path, capsy
 
 def test_simulate_refuses_less_than_one_thread(tmp_path, capsys):
     argv = ["simulate", "--bed", "b.npz", "--trajectory", "t.csv", "--out", "f.zarr"]
-    assert main([*argv, "--threads", "0"]) == 2
-    assert "threads must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # argparse, with the config's bounds
+        main([*argv, "--threads", "0"])
+    assert exit_.value.code == 2
+    assert "argument --threads: 0 is less than the minimum of 1" in capsys.readouterr().err

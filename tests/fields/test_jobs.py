@@ -19,6 +19,7 @@ def run_inputs(tmp_path_factory):
     return tmp, *write_tiny_run(tmp, "path.csv")
 
 
+@pytest.mark.slow  # a simulation logged to MLflow; test_run covers simulate fast
 def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mlflow_store):
     tmp, config, bed, _ = run_inputs
     out = tmp / "f.zarr"
@@ -40,9 +41,12 @@ def test_simulate_labels_the_store_and_records_the_run_in_mlflow(run_inputs, mlf
     client = mlflow_store
     exp = client.get_experiment_by_name("dozerlab").experiment_id
     (run,) = client.search_runs([exp])
-    assert run.info.status == "FINISHED" and run.info.run_name == "simulate step v=0.5 d=0.06"
-    assert {k: run.data.tags[k] for k in ("rule", "scenario", "speed", "depth")} == {
+    assert (
+        run.info.status == "FINISHED" and run.info.run_name == "simulate/step/speed~0.5_depth~0.06"
+    )
+    assert {k: run.data.tags[k] for k in ("rule", "role", "scenario", "speed", "depth")} == {
         "rule": "simulate",
+        "role": "simulate",
         "scenario": "step",
         "speed": "0.5",
         "depth": "0.06",

@@ -14,6 +14,7 @@ from PIL import Image, ImageSequence
 from dozerlab.cli import main
 from dozerlab.fields.plots import write_gif
 from dozerlab.fields.store import write_store
+from dozerlab.runtime import FOLDER_MARK
 
 
 def test_plot_fields_command_writes_slices_force_and_gif(tmp_path, store_arrays):
@@ -35,7 +36,7 @@ def test_plot_fields_command_writes_slices_force_and_gif(tmp_path, store_arrays)
         == 0
     )
     names = sorted(p.name for p in (tmp_path / "plots").iterdir())
-    assert names == ["fields.gif", "force.png", "slice_000000.png", "slice_000069.png"]
+    assert names == [FOLDER_MARK, "fields.gif", "force.png", "slice_000000.png", "slice_000069.png"]
     with Image.open(tmp_path / "plots" / "fields.gif") as gif:
         assert gif.n_frames == 12
     assert main(["plot-fields", str(store), "--out", str(tmp_path / "p2"), "--steps", "70"]) == 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import xarray as xr
 import zarr
 from zarr.core import sync as zarr_sync
 
-from dozerlab.fields.reader import DamagedStoreError
+from dozerlab.fields.reader import DamagedStoreError, UncheckedStoreError
 from dozerlab.fields.store import SCHEMA, FieldStoreWriter, open_store, write_store
 from dozerlab.learn.data import load_store
 
@@ -108,6 +109,7 @@ def test_open_store_names_what_is_missing(tmp_path, store_arrays):
     with pytest.raises(ValueError, match=r"missing attributes \['speed'"):
         open_store(path)
     ds = xr.open_zarr(path).drop_vars("torque").rename({"force": "blade_force"})
+    del ds.attrs["metadata_sha256"]  # another tool's store: the schema is named first
     ds.to_zarr(tmp_path / "g.zarr", zarr_format=3, consolidated=True)
     with pytest.raises(ValueError, match=r"missing variable 'force'.*missing variable 'torque'"):
         open_store(tmp_path / "g.zarr")
@@ -153,3 +155,84 @@ def test_time_must_increase_and_series_be_finite(tmp_path, store_arrays):
         DamagedStoreError, match=r"'torque' holds 1 NaN/inf value\(s\), first at step 12"
     ):
         open_store(write_store(tmp_path / "q.zarr", **a))
+
+
+def _flip(file: Path, at: int) -> None:
+    data = bytearray(file.read_bytes())
+    data[at] ^= 0x01
+    file.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize(
+    ("name", "chunk", "at"),
+    [
+        ("velocity", "c/1/0/0/0/0", 30),  # compressed shard: an inner chunk
+        ("density", "c/0/0/0/0", 20),
+        ("force", "c/0/0", 7),  # uncompressed
+        ("time", "c/1", 3),
+        ("x", "c/0", 1),
+        ("component", "c/0", 2),
+    ],
+)
+def test_a_flipped_byte_in_any_chunk_is_refused_naming_array_and_chunk(
+    tmp_path, store_arrays, name, chunk, at
+):
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    _flip(path / name / chunk, at)
+    with pytest.raises(
+        DamagedStoreError, match=rf"f.zarr is damaged.*array '{name}': .*{chunk}.* fails its CRC32C"
+    ):
+        open_store(path)
+
+
+@pytest.mark.parametrize(
+    ("file", "old", "new", "match"),
+    [
+        (
+            "velocity/zarr.json",
+            '"float32"',
+            '"float64"',
+            r"velocity/zarr.json gives data type 'float64'",
+        ),
+        (
+            "force/zarr.json",
+            '"shape": [\n    70',
+            '"shape": [\n    60',
+            r"force/zarr.json is damaged: array 'force'",
+        ),
+        (
+            "zarr.json",
+            '"speed": null',
+            '"speed": 1.5',
+            r"f.zarr/zarr.json is damaged: the store's attributes",
+        ),
+    ],
+)
+def test_changed_metadata_is_refused_naming_the_file(tmp_path, store_arrays, file, old, new, match):
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    text = (path / file).read_text()
+    assert old in text
+    (path / file).write_text(text.replace(old, new, 1))
+    with pytest.raises(ValueError, match=match):
+        open_store(path)
+
+
+@pytest.mark.filterwarnings("ignore:Consolidated metadata")
+def test_a_store_without_checksums_is_refused_with_the_remedy(tmp_path, store_arrays):
+    """A store of a dozerlab older than checksums cannot be told from a damaged one."""
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    old = tmp_path / "old.zarr"
+    ds = xr.open_zarr(path)
+    del ds.attrs["metadata_sha256"]
+    ds.to_zarr(old, zarr_format=3, consolidated=True)
+    with pytest.raises(
+        UncheckedStoreError, match=r"old.zarr was written without checksums.*re-run"
+    ):
+        open_store(old)
+
+
+def test_the_group_document_not_json_is_named(tmp_path, store_arrays):
+    path = write_store(tmp_path / "f.zarr", chunk_steps=32, **store_arrays)
+    _flip(path / "zarr.json", 0)
+    with pytest.raises(DamagedStoreError, match=r"f.zarr/zarr.json is not readable zarr metadata"):
+        open_store(path)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from dozerlab.learn.data import StoreData
-from tests.helpers import in_memory, write
+from tests.helpers import copy_mlflow_store, in_memory, write
 
 TRAIN_POINTS = [(0.5, 0.05), (0.5, 0.15), (1.5, 0.05), (1.5, 0.15), (1.0, 0.05), (1.0, 0.15)]
 
@@ -47,12 +47,12 @@ def config():
 
 
 @pytest.fixture(scope="module")
-def tracking(tmp_path_factory):
-    """One SQLite tracking store for the module (creating its tables takes seconds)."""
+def tracking(tmp_path_factory, mlflow_template):
+    """One SQLite tracking store for the module, a copy of the session's empty one."""
     root = tmp_path_factory.mktemp("tracking")
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(root)
-        mp.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{root / 'mlflow.db'}")
+        mp.setenv("MLFLOW_TRACKING_URI", copy_mlflow_store(mlflow_template, root))
         mp.setenv("DOZERLAB_MLFLOW", "1")
         mp.delenv("DOZERLAB_PARENT_RUN_ID", raising=False)
         yield root

@@ -20,6 +20,7 @@ def _inputs(store):
     }
 
 
+@pytest.mark.slow  # logs and reloads MLflow models
 def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_files, config):
     config["learn"]["epochs"] = 2
     config["mlflow"]["enabled"] = True
@@ -39,7 +40,15 @@ def test_logged_and_saved_models_predict_like_the_trained_one(tracking, store_fi
         ]
         np.testing.assert_allclose(got.to_numpy(), expected, rtol=1e-5, atol=1e-4)
     runs = mlflow.search_runs(experiment_names=["dozerlab"], filter_string="tags.model = 'cnn'")
-    assert list(runs["tags.rule"]) == ["train"]
+    assert list(runs["tags.rule"]) == ["train"] and list(runs["tags.role"]) == ["train"]
+    assert list(runs["tags.mlflow.runName"]) == ["train/force/cnn"]
+    # registered by kind under the experiment's name: models:/NAME/VERSION loads it
+    (version,) = mlflow.MlflowClient().search_model_versions("name = 'dozerlab-force-cnn'")
+    assert version.run_id == runs.loc[0, "run_id"]
+    got = mlflow.pyfunc.load_model(f"models:/dozerlab-force-cnn/{version.version}").predict(
+        held_out
+    )
+    np.testing.assert_allclose(got.to_numpy(), expected, rtol=1e-5, atol=1e-4)
     history = mlflow.MlflowClient().get_metric_history(runs.loc[0, "run_id"], "val_loss")
     assert [m.step for m in history] == [0, 1]
 
@@ -70,6 +79,12 @@ def test_a_training_under_a_workflow_spools_its_run_and_model(
     held_out = _inputs(load_store(store_files["interpolation"][0]))
     got = mlflow.pyfunc.load_model(f"models:/{output.model_id}").predict(held_out)
     np.testing.assert_allclose(got.to_numpy(), pyfunc.predict_arrays(result.model, held_out))
+    # the ingestion registers it as a new version of dozerlab-force-linear, tagged with the sweep
+    query = f"tags.`dozerlab.parent_run_id` = '{parent}'"
+    (version,) = client.search_model_versions(query)
+    assert version.name == "dozerlab-force-linear" and version.run_id == run.info.run_id
+    registered = mlflow.pyfunc.load_model(f"models:/dozerlab-force-linear/{version.version}")
+    np.testing.assert_allclose(registered.predict(held_out).to_numpy(), got.to_numpy())
 
 
 def test_cli_train_validate_evaluate(tracking, store_files, capsys):
@@ -125,6 +140,7 @@ def test_cli_train_validate_evaluate(tracking, store_files, capsys):
     assert "trained on" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # two trainings
 def test_a_force_model_trained_on_loop_fields_says_so(tracking, store_files, config, capsys):
     """``--loop-fields``: the reduced loop's runs of the training points give the fields, NDEM's
     runs the force; the model, its metadata and its MLflow run say which fields it learnt."""
@@ -152,6 +168,7 @@ def test_a_force_model_trained_on_loop_fields_says_so(tracking, store_files, con
         experiment_names=["dozerlab"], filter_string="tags.rule = 'train_loop_force'"
     )
     assert list(runs["tags.fields"]) == ["loop"]
+    assert list(runs["tags.mlflow.runName"]) == ["train/force/linear-loop"]  # not "linear"
     assert runs.loc[0, "params.loop_fields"] == ",".join(loops)
     # one reduced run per training store, of the same point
     assert main([*argv, str(tracking / "m2"), "--loop-fields", *loops[:3]]) == 2

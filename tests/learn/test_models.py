@@ -11,7 +11,15 @@ from dozerlab.learn.validate import predict_store
 from tests.helpers import in_memory
 
 
-@pytest.mark.parametrize("kind", ["linear", "mlp", "cnn", "unet"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "linear",
+        "mlp",
+        pytest.param("cnn", marks=pytest.mark.slow),  # 20 epochs of 3-D convolutions
+        pytest.param("unet", marks=pytest.mark.slow),
+    ],
+)
 def test_models_learn_a_known_force(kind, train_stores, config):
     torch.set_num_threads(1)
     result = train_model(kind, train_stores, config, progress=False)

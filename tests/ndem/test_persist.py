@@ -1,5 +1,7 @@
 """A World's parts saved as one .npz and loaded back as they were."""
 
+import zipfile
+
 import numpy as np
 import pytest
 
@@ -68,3 +70,32 @@ def test_a_file_of_another_format_is_refused(tmp_path):
     np.savez(tmp_path / "other.npz", positions=np.zeros((2, 3)))
     with pytest.raises(DozerlabError, match=r"is not a dozerlab\.ndem World file"):
         load_world(tmp_path / "other.npz")
+
+
+@pytest.mark.parametrize("damage", ["truncated", "flipped"])
+def test_a_damaged_world_file_is_refused_naming_it(tmp_path, damage):
+    """Every array's CRC-32 is checked: a zip error or changed bytes, never a traceback."""
+    params, state, bodies = _parts()
+    path = tmp_path / "w.npz"
+    save_world(path, params, state, bodies)
+    data = bytearray(path.read_bytes())
+    if damage == "truncated":
+        data = data[: len(data) // 2]
+    else:  # the last byte of the sphere positions
+        with zipfile.ZipFile(path) as z:
+            info = z.getinfo("sphere_x.npy")
+        start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+        data[start + info.file_size - 1] ^= 0x04
+    path.write_bytes(bytes(data))
+    with pytest.raises(DozerlabError, match=rf"{path} is damaged"):
+        load_world(path)
+
+
+def test_a_state_with_nan_is_neither_saved_nor_loaded(tmp_path):
+    params, state, bodies = _parts()
+    state.x[2, 1] = np.nan
+    with pytest.raises(
+        DozerlabError, match=r"'sphere_x' holds 1 NaN/inf value\(s\), first in row 2"
+    ):
+        save_world(tmp_path / "w.npz", params, state, bodies)
+    assert not (tmp_path / "w.npz").exists()

@@ -6,6 +6,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 
 from dozerlab.cli import main
 from dozerlab.fields.store import open_store
@@ -23,6 +24,7 @@ def _reduce_argv(tmp, dynamics: str, out: str) -> list[str]:
     ]
 
 
+@pytest.mark.slow  # a reduced run and its NDEM run; reduce-points covers the command fast
 def test_reduce_command_writes_an_aligned_store_and_a_bed_file(ndem_run):
     tmp, _ = ndem_run
     assert main([*_reduce_argv(tmp, "replay", "cli"), "--depth", "0.06"]) == 0
@@ -65,6 +67,8 @@ def test_reduce_points_reads_and_writes_the_workflows_paths(ndem_run, tmp_path, 
     ]
     assert main([*argv, "hill/speed~0.5_depth~fast"]) == 2
     assert "is not named speed~{speed}_depth~{depth}" in capsys.readouterr().err
+    assert main([*argv, "hill/speed~0.5_depth~0.06", "hill/speed~0.5_depth~0.06"]) == 2
+    assert "are one point; give it once" in capsys.readouterr().err
     assert not (results / "reduced").exists()
     assert main([*argv, "hill/speed~0.5_depth~0.06"]) == 0
     assert "reduced run hill/speed~0.5_depth~0.06:" in capsys.readouterr().out
@@ -73,3 +77,53 @@ def test_reduce_points_reads_and_writes_the_workflows_paths(ndem_run, tmp_path, 
     assert ds.attrs["dynamics_model"] == "replay" and ds.attrs["force_model"] == "linear"
     np.testing.assert_allclose(ds["time"].values, open_store(tmp / "ndem.zarr")["time"].values)
     assert Bed.load(P.reduced_path(results, "replay", point, "npz")).count > 0
+
+
+def test_replaying_another_points_store_is_refused_naming_both(ndem_run, capsys):
+    """``reduce --ndem`` with another point's store or a store of other bins ran to exit 0 and
+    wrote a wrongly shaped reduced store."""
+    tmp, _ = ndem_run
+    other = tmp / "speed~0.7_depth~0.06.csv"
+    argv = ["trajectory", "--bed", str(tmp / "bed.npz"), "--speed", "0.7", "--depth", "0.06"]
+    assert main([*argv, "--config", json.dumps(CONFIG), "--out", str(other)]) == 0
+    ndem = tmp / "ndem.zarr"
+    rows = open_store(ndem).sizes["time"]
+
+    def refused(argv: list[str], *parts: str) -> None:
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and err.count("\n") == 1, err
+        for part in (f"NDEM store {ndem}", *parts):
+            assert part in err, err
+        assert not (tmp / "bad.zarr").exists() and not (tmp / "bad.npz").exists()
+
+    argv = _reduce_argv(tmp, "replay", "bad")
+    argv[argv.index("--trajectory") + 1] = str(other)
+    refused(argv, "is the run of", "'speed': 0.7", str(other))
+    # labelled as the store's point, the 0.7 m/s trajectory still has other rows
+    refused([*argv, "--speed", "0.5"], f"has {rows} rows but trajectory {other} gives")
+    bins = {**CONFIG, "sampling": {**CONFIG["sampling"], "bins": [4, 5, 4]}}
+    argv = _reduce_argv(tmp, "replay", "bad")
+    argv[argv.index("--config") + 1] = json.dumps(bins)
+    refused(argv, "has (6, 5, 4) bins but the run samples (4, 5, 4)")
+    wide = {**CONFIG, "sampling": {**CONFIG["sampling"], "length": 0.4}}
+    argv[argv.index("--config") + 1] = json.dumps(wide)
+    refused(argv, "m but the run's are")
+
+
+def test_speed_and_depth_flags_take_the_bounds_of_the_sweep(ndem_run, capsys):
+    """``trajectory --speed 1e-9`` grew past 870 MB."""
+    tmp, _ = ndem_run
+    out = tmp / "crawl.csv"
+    for flag, value, allowed in (("--speed", "1e-9", ">= 0.01"), ("--depth", "1e-250", ">= 0.001")):
+        argv = ["trajectory", "--bed", str(tmp / "bed.npz"), "--speed", "0.5", "--depth", "0.06"]
+        argv[argv.index(flag) + 1] = value
+        with pytest.raises(SystemExit) as exit_:
+            main([*argv, "--out", str(out)])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument {flag}:" in err and f"(allowed: {allowed}" in err
+        assert not out.exists()
+    with pytest.raises(SystemExit):
+        main([*_reduce_argv(tmp, "replay", "bad"), "--speed", "nan"])
+    assert "nan is not a finite number" in capsys.readouterr().err

@@ -10,7 +10,7 @@ import pytest
 from dozerlab import sweep as P
 from dozerlab.config import load_config
 from dozerlab.reduce.jobs import COMPARISON_JSON, compare_job, reduce_job
-from dozerlab.runtime import DozerlabError
+from dozerlab.runtime import FOLDER_MARK, DozerlabError
 from tests.helpers import REDUCED_RUN
 
 SWEEP = {"scenarios": ["hill"], "speeds": [1.0], "depths": [0.06], "extrapolation": []}
@@ -60,7 +60,7 @@ def test_ndem_compared_with_itself_meets_the_accuracy_targets_only(ndem_run, tmp
     assert entry["role"] == "interpolation" and entry["force_x_rel_rmse"] == 0.0
     assert entry["targets_met"]["height_accuracy"] and entry["targets_met"]["force_rmse"]
     assert entry["targets_met"]["loop_speedup"] is False  # the same run: 1×, not 50×
-    assert sorted(p.name for p in plots.iterdir()) == sorted(entry["plots"])
+    assert sorted(p.name for p in plots.iterdir()) == sorted([FOLDER_MARK, *entry["plots"]])
     assert len(entry["plots"]) == 3  # force, fields, height; no GIF
     assert summary["overall"]["interpolation"] == summary["overall"]["all"]
     assert summary["overall"]["all"]["loop_speedup"] == 1.0

@@ -19,6 +19,9 @@ class _Still:
     def __init__(self, grid):
         self.grid = grid
 
+    def check_run(self, run):
+        pass
+
     def predict(self, velocity, density, blade_velocity, row):
         return np.zeros((2, *self.grid, 3), np.float32), np.repeat(density[-1:], 2, axis=0)
 
@@ -69,6 +72,9 @@ class _Uniform:
     def __init__(self, grid):
         self.grid = grid
         self.seen: list[np.ndarray] = []
+
+    def check_run(self, run):
+        pass
 
     def predict(self, velocity, density, blade_velocity, row):
         self.seen.append(velocity[-1].copy())

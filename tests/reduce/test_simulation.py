@@ -149,3 +149,27 @@ def test_a_falling_grain_rests_only_where_held_up_within_the_support_angle(angle
     state.step(np.zeros((*grid.bins, 3)), np.zeros(grid.bins), np.array([-5.0, 0.0, 0.5]), 0.01)
     assert not state.moving[0]
     assert state.x[0, 2] == pytest.approx(0.02)
+
+
+def test_the_loop_reads_only_the_reduced_fields_the_workflow_passes_its_jobs():
+    """The reduce rules pass only ``LOOP_FIELDS`` of the reduced section (so that the targets
+    rerun the comparison alone): the loop's settings must not depend on any other field."""
+    from dozerlab.config import load_config
+    from dozerlab.reduce import LOOP_FIELDS
+
+    changed = {
+        "projection": {"method": "jacobi", "iterations": 7, "relaxation": 0.9, "tolerance": 0.1},
+        "advect_margin": 1,
+        "rest_speed": 0.2,
+        "support_angle": 30,
+        "divergence_overlap": 0.7,
+        "moved_radii": 3.0,
+        "targets": {"force_rmse": 0.9, "loop_speedup": 2},
+        "force_model": "mlp",
+        "force_fields": "ndem",
+        "dynamics_models": ["ridge"],
+    }
+    full = load_config({"reduced": changed})
+    passed = load_config({"reduced": {k: v for k, v in changed.items() if k in LOOP_FIELDS}})
+    assert ReducedSettings.from_config(passed) == ReducedSettings.from_config(full)
+    assert ReducedSettings.from_config(full) != ReducedSettings.from_config(load_config({}))

@@ -39,5 +39,5 @@ def test_figures_are_the_trajectory_slice_and_force_of_what_exists(tmp_path):
     figures = point_figures(tmp_path, POINT)
     assert len(figures) == 3
     assert "t = 0.04 s" in figures[1]  # the middle row of six, 0.01 s apart from 0.01 s
-    assert "blade force (N) and torque about the tip (N·m)" in figures[2]
+    assert "blade force (kN) and torque about the tip (kN·m)" in figures[2]
     assert all('src="data:image/png;base64,' in f for f in figures)

@@ -50,6 +50,31 @@ def test_bytes_and_figures_are_embedded_as_base64():
         2 * html.FIGURE_DPI,
         1 * html.FIGURE_DPI,
     )
+    assert png[25] == 3  # the IHDR colour type: a palette PNG (html.palette_png)
+
+
+def test_an_animation_is_a_file_beside_the_page_shown_by_relative_path(tmp_path):
+    gif = tmp_path / "results" / "a.gif"
+    gif.parent.mkdir()
+    gif.write_bytes(b"GIF89a frames")
+    out = html.animation(gif, tmp_path / "report", "reduced_a.gif", "NDEM & reduced")
+    assert out == (
+        '<figure><a href="animations/reduced_a.gif"><img src="animations/reduced_a.gif" '
+        'alt="NDEM &amp; reduced" loading="lazy"></a><figcaption>NDEM &amp; reduced'
+        "</figcaption></figure>"
+    )
+    assert (tmp_path / "report" / "animations" / "reduced_a.gif").read_bytes() == b"GIF89a frames"
+    with pytest.raises(ValueError, match=r"a \.gif file name"):
+        html.animation(gif, tmp_path / "report", "../a.gif", "up")
+
+
+def test_the_summary_links_each_answer_to_its_section():
+    out = html.summary([("Best force model", "mlp, 9 % < 10 %", "models")])
+    assert out == (
+        '<ul class="summary"><li><a href="#models"><b>Best force model</b></a>: '
+        "mlp, 9 % &lt; 10 %</li></ul>"
+    )
+    assert html.verdict("a & b") == '<p class="verdict">a &amp; b</p>'
 
 
 def test_page_escapes_text_links_its_sections_and_is_recognised_as_a_report(tmp_path):

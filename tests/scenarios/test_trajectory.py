@@ -79,7 +79,8 @@ def test_integrating_velocities_reproduces_positions_exactly(hill_bed, config, t
     np.testing.assert_array_equal(back.time, np.arange(len(back.time)) * back.dt)
     header = (tmp_path / "t.csv").read_text().splitlines()
     assert header[0] == "step,time,x,y,z,vx,vy,vz"
-    assert header[-1].endswith(",0,0,0")
+    assert header[-2].endswith(",0,0,0")
+    assert header[-1].startswith("# sha256 ")  # np.loadtxt skips it as a comment
 
 
 def test_walk_path_keeps_chord_length_around_corners():
@@ -120,3 +121,11 @@ def test_plot_writes_png(step_bed, config, tmp_path):
 
     plot_trajectory(plan_trajectory(step_bed, 1.0, 0.1, config), tmp_path / "t.png")
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_trajectory_with_nan_is_never_written(hill_bed, config, tmp_path):
+    traj = plan_trajectory(hill_bed, 0.7, 0.08, config)
+    traj.position[3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"t.csv: row 3 holds NaN/inf \('x'\)"):
+        traj.save_csv(tmp_path / "t.csv")
+    assert not (tmp_path / "t.csv").exists()

@@ -8,16 +8,34 @@ import shlex
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
+from snakemake.logging import logger
 
-from dozerlab import cluster, runtime, spool, tracking
-from dozerlab.config import load_config, schema
+from dozerlab import cluster, console, headline, runtime, spool, tracking
+from dozerlab.config import load_config, read_yaml, schema
 from dozerlab import sweep as P
+from dozerlab.reduce import LOOP_FIELDS
 
-# Validate before any job runs: a bad value stops here with its field name and allowed range.
-config.update(load_config(config))
+STARTED = time.time()
+# One line per job start and end on the console (dozerlab.console); Snakemake's log under
+# .snakemake/log keeps its full output, shell commands included. Dry runs (-n) and --verbose
+# keep Snakemake's.
+console.install(logger)
+
+# Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
+# here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
+# of a key given twice, so each file is read again with ours, which refuses it.
+for _path in workflow.configfiles:
+    if Path(_path).is_file():  # the Snakefile's default, absent in a bare workdir, is skipped
+        read_yaml(_path)
+try:
+    config.update(load_config(config))
+except runtime.ConfigError as _exc:
+    _files = " + ".join(map(str, workflow.configfiles)) or "the defaults"
+    raise runtime.ConfigError(f"configuration {_files}: {_exc}") from None
 POINTS = P.sweep_points(config)
 HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
 RESULTS = P.RESULTS
@@ -45,16 +63,27 @@ wildcard_constraints:
     dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
-def config_json(*sections, scenario=None):
+def config_json(*sections, scenario=None, fields=None):
     """The named config sections as inline JSON for a command's --config (a rule's params).
 
     A rule reruns when its params change, so each rule passes only what its command reads;
-    with ``scenario``, the ``scenarios`` section holds only that scenario's shape.
+    with ``scenario``, the ``scenarios`` section holds only that scenario's shape; ``fields``
+    maps a section to the only fields of it the command reads.
     """
     doc = {name: config[name] for name in sections}
     if scenario is not None and "scenarios" in doc:
         doc["scenarios"] = {scenario: config["scenarios"][scenario]}
+    for name, keep in (fields or {}).items():
+        doc[name] = {k: v for k, v in doc[name].items() if k in keep}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
+def reduce_config_json():
+    """What a reduce job reads: the sections of the run and, of the reduced section, the loop's
+    settings (dozerlab.reduce.LOOP_FIELDS); not the targets, which only the comparison and the
+    report read."""
+    sections = ("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow")
+    return config_json(*sections, fields={"reduced": LOOP_FIELDS})
 
 
 def canonical(wildcards):
@@ -178,7 +207,7 @@ def all_targets():
     targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
     targets += reduced_comparisons()
-    targets.append(P.pattern("report"))
+    targets.append(P.pattern("report_dir"))
     return targets
 
 
@@ -204,21 +233,35 @@ def check_cluster_fit():
     cluster.check_fit(requests, cluster.slurm_nodes())
 
 
+def sweep_name():
+    """The parent run's name: ``sweep/`` and the stems of the config files (the Snakefile's
+    config/config.yaml left out when others are laid over it), e.g. ``sweep/quick``."""
+    files = list(dict.fromkeys(Path(f).resolve() for f in workflow.configfiles))
+    default = Path("config", "config.yaml").resolve()
+    stems = [f.stem for f in files if f != default or len(files) == 1]
+    return "sweep/" + "+".join(stems or ["config"])
+
+
 def start_parent_run():
     """Start this invocation's parent MLflow run and export its id to the jobs' environment."""
     if not tracking.enabled():
         return
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-start", "--config", json.dumps(config),
-           "--name", "workflow", "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
+           "--name", sweep_name(), "--tag", "configfiles=" + ",".join(map(str, workflow.configfiles))]
     try:
         # In its own session: Ctrl-C reaches Snakemake alone, which stops the command below.
-        done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, start_new_session=True)
+        done = subprocess.run(cmd, capture_output=True, text=True, start_new_session=True)
     except KeyboardInterrupt:
         # Before any job: say so and stop (SystemExit: no traceback, Snakemake's lock released).
         print("dozerlab: interrupted while starting the MLflow parent run; no job ran", file=sys.stderr)
         sys.exit(130)
     if done.returncode != 0:
+        print(done.stderr, end="", file=sys.stderr)
         raise WorkflowError(f"dozerlab mlflow-start failed (exit {done.returncode}); see the message above")
+    # dozerlab's own lines (runs closed or logged for a killed workflow), not MLflow's chatter
+    for line in done.stderr.splitlines():
+        if line.startswith(("closed parent run", "logged", "spooled runs")):
+            print(line, file=sys.stderr)
     os.environ[tracking.PARENT_ENV] = done.stdout.strip()
     start_ingest(os.environ[tracking.PARENT_ENV])
 
@@ -255,7 +298,9 @@ def stop_ingest():
 
 
 def end_parent_run(status, log):
-    """End the parent run with ``status``, attaching the report and Snakemake's log if new.
+    """End the parent run with ``status``, attaching the report (its folder: the page and its
+    animations) and Snakemake's log if new, and the sweep's headline figures (dozerlab.headline)
+    as its metrics.
 
     Snakemake 9 passes ``log`` as the list of its log files (a path in older versions).
     """
@@ -264,8 +309,17 @@ def end_parent_run(status, log):
         return
     stop_ingest()
     logs = [log] if isinstance(log, (str, os.PathLike)) else list(log or [])
-    artifacts = [P.pattern("report")] + [str(p) for p in logs]
+    artifacts = [P.pattern("report_dir")] + [str(p) for p in logs]
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]
+    for key, value in headline.metrics(RESULTS, config).items():
+        cmd += ["--metric", f"{key}={value!r}"]
     subprocess.run(cmd, check=status != "FINISHED")
+
+
+def print_summary():
+    """The closing lines of a run that built the sweep: wall time, report, best models, the
+    reduced simulation's targets met and missed (dozerlab.headline)."""
+    for line in headline.summary_lines(RESULTS, config, time.time() - STARTED):
+        print(line, file=sys.stderr)

@@ -22,7 +22,7 @@ rule reduce:
         **cluster.job_resources(config, "reduce"),
     threads: config["threads"]["simulate"]
     params:
-        cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
+        cfg=lambda wc: reduce_config_json(),
         dynamics=lambda wc, input: input.dynamics or "replay",
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce --bed {input.bed:q} --trajectory {input.trajectory:q}"
@@ -58,7 +58,7 @@ rule reduce_training_points:
     threads: config["threads"]["simulate"]
     priority: 1  # the loop's force model, which the held-out runs wait for, learns from these
     params:
-        cfg=lambda wc: config_json("seed", "solver", "material", "blade", "sampling", "reduced", "mlflow"),
+        cfg=lambda wc: reduce_config_json(),
         results=lambda wc: RESULTS,
         points=" ".join(f"{p.scenario}/{p.name}" for p in TRAINING_POINTS),
     shell:

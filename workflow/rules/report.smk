@@ -1,4 +1,5 @@
-# The platform's report: the sweep table, per-point figures and the model comparison.
+# The platform's report: the summary, the sweep table, per-point figures and the model comparison;
+# results/report/index.html and its animations in results/report/animations/.
 
 
 rule report:
@@ -9,7 +10,13 @@ rule report:
         reduced=reduced_comparisons(),
         dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
     output:
-        report(P.pattern("report"), caption="../report/index.rst", category="Report"),
+        # the page (P.pattern("report")) and its animations folder beside it
+        report(
+            directory(P.pattern("report_dir")),
+            htmlindex="index.html",
+            caption="../report/index.rst",
+            category="Report",
+        ),
     log:
         "logs/report.log",
     threads: config["threads"]["report"]
@@ -18,5 +25,5 @@ rule report:
     params:
         cfg=lambda wc: config_json("sweep", "learn", "dynamics", "report", "reduced"),
     shell:
-        "python -m dozerlab report --config {params.cfg:q} --results %s --out {output:q} "
-        "--processes {threads} > {log:q} 2>&1" % P.RESULTS
+        "python -m dozerlab report --config {params.cfg:q} --results %s --out %s "
+        "--processes {threads} > {log:q} 2>&1" % (P.RESULTS, P.pattern("report"))

@@ -4,11 +4,27 @@ from __future__ import annotations
 
 import argparse
 
-from dozerlab.cliargs import add_config, add_labels, add_run_inputs, add_threads, configure, labels
+from dozerlab.cliargs import (
+    add_command,
+    add_config,
+    add_labels,
+    add_run_inputs,
+    add_threads,
+    configure,
+    labels,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("simulate", help="run NDEM along a blade trajectory and record the fields")
+    p = add_command(
+        sub,
+        "simulate",
+        "run the grain simulation (NDEM) along a blade trajectory and record the fields",
+        "python -m dozerlab simulate --config config/quick.yaml --bed results/beds/hill.npz \\\n"
+        "      --trajectory results/trajectories/hill/speed~1.0_depth~0.04.csv \\\n"
+        "      --out results/fields/hill/speed~1.0_depth~0.04.zarr \\\n"
+        "      --state results/states/hill/speed~1.0_depth~0.04.npz",
+    )
     add_run_inputs(p)
     add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
@@ -27,8 +43,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_labels(p)
     p.set_defaults(func=_simulate)
 
-    p = sub.add_parser(
-        "plot-fields", help="field slices, force plot and an animation of a field store"
+    p = add_command(
+        sub,
+        "plot-fields",
+        "draw field slices, the force plot and an animation of a field store",
+        "python -m dozerlab plot-fields results/fields/hill/speed~1.0_depth~0.04.zarr \\\n"
+        "      --out results/plots/hill/speed~1.0_depth~0.04",
     )
     p.add_argument("store", help="field store (.zarr)")
     p.add_argument("--out", required=True, help="directory for the PNGs and the GIF")
@@ -43,8 +63,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-animation", action="store_true", help="skip the GIF")
     p.set_defaults(func=_plot)
 
-    p = sub.add_parser(
-        "import-legacy", help="convert the thesis's binary field file to a field store"
+    p = add_command(
+        sub,
+        "import-legacy",
+        "convert the thesis's binary field file to a field store",
+        "python -m dozerlab import-legacy speed~1.0_depth~0.04.bin \\\n"
+        "      results/fields/legacy/speed~1.0_depth~0.04.zarr",
     )
     p.add_argument("file", help="legacy binary file")
     p.add_argument("out", help="field store to write (.zarr)")
@@ -58,9 +82,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_import)
 
-    p = sub.add_parser("export-legacy", help="write a field store in the thesis's binary format")
+    p = add_command(
+        sub,
+        "export-legacy",
+        "write a field store in the thesis's binary format",
+        "python -m dozerlab export-legacy results/fields/hill/speed~1.0_depth~0.04.zarr \\\n"
+        "      speed~1.0_depth~0.04.bin",
+    )
     p.add_argument("store", help="field store (.zarr)")
-    p.add_argument("out", help="binary file to write")
+    p.add_argument("out", help="binary file to write (a new one unless --overwrite)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing legacy binary file at OUT: the format has no room for a mark "
+        "of ours, so without this flag any existing file is refused",
+    )
     p.set_defaults(func=_export)
 
 
@@ -74,16 +110,19 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from dozerlab.fields.plots import plot_run
+    from dozerlab.fields.plots import FIELD_PLOTS, plot_run
     from dozerlab.fields.store import open_store
+    from dozerlab.runtime import job_outputs
 
-    for path in plot_run(
-        open_store(args.store),
-        args.out,
-        steps=args.steps,
-        animation=not args.no_animation,
-        frames=args.frames,
-    ):
+    with job_outputs(("--out", args.out, FIELD_PLOTS)):
+        paths = plot_run(
+            open_store(args.store),
+            args.out,
+            steps=args.steps,
+            animation=not args.no_animation,
+            frames=args.frames,
+        )
+    for path in paths:
         print(path)
     return 0
 
@@ -98,5 +137,5 @@ def _import(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from dozerlab.fields.legacy import export_legacy
 
-    print(export_legacy(args.store, args.out))
+    print(export_legacy(args.store, args.out, overwrite=args.overwrite))
     return 0

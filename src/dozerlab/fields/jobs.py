@@ -13,10 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from dozerlab import __version__, tracking
-from dozerlab.fields.run import drive, load_inputs
+from dozerlab.fields.run import STATE_FILE, VTK_FOLDER, drive, load_inputs
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FIELD_STORE, open_store
-from dozerlab.runtime import check_output, freeze_heap
+from dozerlab.runtime import OutputKind, freeze_heap, job_outputs
+from dozerlab.sweep import fmt_number, point_name
 
 log = logging.getLogger(__name__)
 
@@ -44,13 +45,49 @@ def simulate(
     ``plots_dir`` and to MLflow; the final particle state to ``state_out`` (a bed file,
     ``Bed.load`` reads it) when given. The store's ``wall_time_s`` attribute is the stepping
     loop's wall time (s). Raises :class:`DozerlabError` when the
-    simulation diverges, leaving no store.
+    simulation diverges, leaving no store. Every output is checked before the run
+    (:func:`~dozerlab.runtime.job_outputs`), and a run that fails leaves none of them.
     """
-    from dozerlab.scenarios.bed import BED_FILE
+    plots: OutputKind | None = None
+    if plots_dir is not None:  # matplotlib is imported only for plots
+        from dozerlab.fields.plots import FIELD_PLOTS
 
-    check_output(out, FIELD_STORE)  # before the run, not after it
-    if state_out is not None:
-        check_output(state_out, BED_FILE)
+        plots = FIELD_PLOTS
+    with job_outputs(
+        ("--out", out, FIELD_STORE),
+        ("--state", state_out, STATE_FILE),
+        ("--vtk-dir", vtk_dir if config["sampling"]["vtk_every"] > 0 else None, VTK_FOLDER),
+        ("--plots", plots_dir, plots),
+    ):
+        return _simulate(
+            bed_path,
+            trajectory_path,
+            config,
+            Path(out),
+            scenario=scenario,
+            speed=speed,
+            depth=depth,
+            vtk_dir=vtk_dir,
+            plots_dir=plots_dir,
+            log_every=log_every,
+            state_out=state_out,
+        )
+
+
+def _simulate(
+    bed_path: str | Path,
+    trajectory_path: str | Path,
+    config: dict[str, Any],
+    out: Path,
+    *,
+    scenario: str | None,
+    speed: float | None,
+    depth: float | None,
+    vtk_dir: str | Path | None,
+    plots_dir: str | Path | None,
+    log_every: int | None,
+    state_out: str | Path | None,
+) -> dict[str, float]:
     bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     scenario = scenario or bed.scenario
     speed = speed if speed is not None else round(traj.speed, 6)
@@ -72,7 +109,8 @@ def simulate(
         "config": json.dumps(config, sort_keys=True),
     }
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
-    name = f"simulate {scenario} v={speed} d={depth}"
+    point = point_name(speed, depth) if depth is not None else f"speed~{fmt_number(speed)}"
+    name = tracking.run_name("simulate", scenario, point)
     freeze_heap()  # as the reduce job does: the two loops are timed against each other
     with tracking.job_run(
         config,
@@ -81,10 +119,10 @@ def simulate(
         tags={"scenario": scenario, "speed": speed, "depth": depth},
         params=params,
     ) as run:
-        stats = drive(bed, traj, config, grid, attrs, Path(out), vtk_dir, log_every, state_out)
+        stats = drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every, state_out)
         metrics = stats.metrics(bed.count)
         log.info("run done: %s", ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()))
-        _plots_and_metrics(Path(out), plots_dir, metrics, run)
+        _plots_and_metrics(out, plots_dir, metrics, run)
     return metrics
 
 

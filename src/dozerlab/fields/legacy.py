@@ -27,8 +27,14 @@ import numpy as np
 from tqdm import tqdm
 
 from dozerlab import __version__
-from dozerlab.fields.store import ATTRS, DEFAULT_CHUNK_STEPS, FieldStoreWriter, open_store
-from dozerlab.runtime import OutputKind, atomic_output
+from dozerlab.fields.store import (
+    ATTRS,
+    DEFAULT_CHUNK_STEPS,
+    FieldStoreWriter,
+    field_store_kind,
+    open_store,
+)
+from dozerlab.runtime import OutputKind, atomic_output, job_outputs
 
 HEADER_BYTES = 24
 _HEADER = np.dtype([("bins", "<i4", 3), ("bin_size", "<f4", 3)])
@@ -88,8 +94,20 @@ def _is_legacy(path: Path) -> bool:
     return True
 
 
-#: What ``export-legacy`` writes; the format has no marker, so its header and length identify it.
+#: What ``export-legacy --overwrite`` replaces: the format has no room for a mark of ours, so a
+#: file whose header and length are consistent, ours or a user's; without ``--overwrite``,
+#: :data:`NEW_LEGACY_FILE`.
 LEGACY_FILE = OutputKind("a legacy binary field file", _is_legacy)
+#: What ``export-legacy`` replaces without ``--overwrite``: nothing.
+NEW_LEGACY_FILE = OutputKind(
+    "known to be ours (the legacy format has no room for a mark; --overwrite replaces a legacy "
+    "binary field file)",
+    lambda path: False,
+)
+#: What ``import-legacy`` writes; only an earlier import may be replaced.
+IMPORTED_STORE = field_store_kind(
+    "a dozerlab field store written by import-legacy", "import-legacy"
+)
 
 
 def import_legacy(
@@ -104,7 +122,11 @@ def import_legacy(
     ``lower`` (3,) is the sampling volume's minimum corner relative to the tip, m (default:
     x from 0, y centred, z from 0 at the volume's bottom).
     """
-    src = Path(src)
+    with job_outputs(("OUT", out, IMPORTED_STORE)):
+        return _import(Path(src), out, lower, chunk_steps)
+
+
+def _import(src: Path, out: str | Path, lower: Sequence[float] | None, chunk_steps: int) -> Path:
     bins, bin_size, steps = read_header(src)
     size = np.asarray(bin_size, dtype=np.float64)
     n = np.asarray(bins)
@@ -134,7 +156,9 @@ def import_legacy(
     )
     position = np.zeros(3)
     last_time = -np.inf
-    with FieldStoreWriter(out, x=x, y=y, z=z, attrs=attrs, chunk_steps=chunk_steps) as w:
+    with FieldStoreWriter(
+        out, x=x, y=y, z=z, attrs=attrs, kind=IMPORTED_STORE, chunk_steps=chunk_steps
+    ) as w:
         for i in tqdm(range(steps), desc=f"import {src.name}", unit="step", disable=None):
             rec = records[i]
             t = float(rec["time"])
@@ -172,8 +196,17 @@ def _check_record(src: Path, rec: np.void, step: int, offset: int) -> None:
             )
 
 
-def export_legacy(store: str | Path, out: str | Path) -> Path:
-    """Write a field store as a legacy binary file (``blade_position`` is not part of the format)."""
+def export_legacy(store: str | Path, out: str | Path, *, overwrite: bool = False) -> Path:
+    """Write a field store as a legacy binary file (``blade_position`` is not part of the format).
+
+    The format has no room for a mark of ours, so an existing ``out`` is refused, whoever wrote
+    it; ``overwrite`` replaces one that is a legacy binary field file (:data:`LEGACY_FILE`)."""
+    kind = LEGACY_FILE if overwrite else NEW_LEGACY_FILE
+    with job_outputs(("OUT", out, kind)):
+        return _export(store, out, kind)
+
+
+def _export(store: str | Path, out: str | Path, kind: OutputKind) -> Path:
     ds = open_store(store)
     nx, ny, nz = (ds.sizes[d] for d in ("x", "y", "z"))
     bin_size = ds.attrs.get("bin_size") or [
@@ -187,7 +220,7 @@ def export_legacy(store: str | Path, out: str | Path) -> Path:
     block = int(
         ds["velocity"].encoding.get("preferred_chunks", {}).get("time", DEFAULT_CHUNK_STEPS)
     )
-    with atomic_output(out, LEGACY_FILE) as tmp, open(tmp, "wb") as f:
+    with atomic_output(out, kind) as tmp, open(tmp, "wb") as f:
         f.write(header.tobytes())
         for start in tqdm(
             range(0, steps, block), desc=f"export {Path(store).name}", unit="chunk", disable=None

@@ -16,7 +16,10 @@ from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 
 from dozerlab.fields.store import store_config
-from dozerlab.runtime import ANIMATION, FIGURE, MARK, atomic_output, png_metadata
+from dozerlab.runtime import ANIMATION, FIGURE, MARK, atomic_output, marked_folder, png_metadata
+
+#: What ``plot-fields`` and ``simulate --plots`` write: a folder of a store's figures.
+FIELD_PLOTS = marked_folder("a dozerlab folder of field plots", "field-plots")
 
 
 def _blade_size(ds: xr.Dataset) -> tuple[float, float]:
@@ -105,12 +108,13 @@ def plot_slice(ds: xr.Dataset, step: int, path: str | Path) -> Path:
 
 
 def plot_force(ds: xr.Dataset, path: str | Path) -> Path:
-    """Write a PNG of the blade force (N) and torque about the tip (N·m) over time."""
+    """Write a PNG of the blade force (kN) and torque about the tip (kN·m) over time (the
+    store's N and N·m, in the report's units)."""
     fig = Figure(figsize=(9, 6), layout="constrained")
     ax_f, ax_t = fig.subplots(2, 1, sharex=True)
     t = ds["time"].values
-    for ax, name, unit in ((ax_f, "force", "N"), (ax_t, "torque", "N·m")):
-        v = ds[name].values
+    for ax, name, unit in ((ax_f, "force", "kN"), (ax_t, "torque", "kN·m")):
+        v = ds[name].values / 1000.0
         for a, c in enumerate("xyz"):
             ax.plot(t, v[:, a], lw=1, label=f"{name} {c}")
         ax.plot(t, np.linalg.norm(v, axis=1), "k", lw=1.2, label=f"|{name}|")
@@ -203,14 +207,17 @@ def plot_run(
     animation: bool = True,
     frames: int = 60,
 ) -> list[Path]:
-    """Write slices at ``steps`` (default: four spread over the run), the force plot and a GIF
-    of ``frames`` frames."""
+    """Write the folder ``out_dir`` (:data:`FIELD_PLOTS`, built whole and moved into place):
+    slices at ``steps`` (default: four spread over the run), the force plot and a GIF of
+    ``frames`` frames. Returns the figures' paths."""
     out = Path(out_dir)
     n = ds.sizes["time"]
     if steps is None:
         steps = sorted({int(s) for s in np.linspace(0, max(n - 1, 0), min(4, n)).round()})
-    paths = [plot_slice(ds, s, out / f"slice_{s % n:06d}.png") for s in steps]
-    paths.append(plot_force(ds, out / "force.png"))
-    if animation and n:
-        paths.append(animate(ds, out / "fields.gif", frames=frames))
-    return paths
+    with atomic_output(out, FIELD_PLOTS) as tmp:
+        tmp.mkdir()
+        paths = [plot_slice(ds, s, tmp / f"slice_{s % n:06d}.png") for s in steps]
+        paths.append(plot_force(ds, tmp / "force.png"))
+        if animation and n:
+            paths.append(animate(ds, tmp / "fields.gif", frames=frames))
+    return [out / p.name for p in paths]

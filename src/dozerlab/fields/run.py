@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import logging
 import time as wallclock
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,17 +22,19 @@ from tqdm import tqdm
 
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import FieldStoreWriter
-from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, text_starts_with
+from dozerlab.runtime import DozerlabError, atomic_output, marked_folder
+from dozerlab.scenarios.bed import bed_file_kind
 
 if TYPE_CHECKING:
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
-#: The particle snapshots of ``--vtk-dir`` (meshio's VTK XML unstructured grids).
-VTK_FILE = OutputKind(
-    "a VTK unstructured grid (.vtu)", text_starts_with('<VTKFile type="UnstructuredGrid"')
-)
+#: The folder of particle snapshots of ``simulate --vtk-dir`` (meshio's VTK XML unstructured
+#: grids), written whole: a folder of the user's, even of ``.vtu`` files, is never written into.
+VTK_FOLDER = marked_folder("a dozerlab folder of particle snapshots (VTK)", "vtk-snapshots")
+#: NDEM's final particle state, ``simulate --state``: a bed file, but never a bed's.
+STATE_FILE = bed_file_kind("a dozerlab final state (.npz) written by simulate", "simulate-state")
 
 
 @dataclass
@@ -82,8 +86,19 @@ def _write_vtk(vtk_dir: Path, step: int, world: Any) -> None:
         cells=[("vertex", np.arange(len(pos)).reshape(-1, 1))],
         point_data={"radius": np.asarray(world.radii), "velocity": np.asarray(world.velocities)},
     )
-    with atomic_output(vtk_dir / f"particles_{step:06d}.vtu", VTK_FILE) as tmp:
-        meshio.write(tmp, mesh, file_format="vtu")
+    meshio.write(vtk_dir / f"particles_{step:06d}.vtu", mesh, file_format="vtu")
+
+
+@contextmanager
+def snapshots(vtk_dir: str | Path | None, vtk_every: int) -> Iterator[Path | None]:
+    """The folder to write a run's VTK snapshots into: a temporary that becomes ``vtk_dir``
+    (:data:`VTK_FOLDER`) when the run succeeds; None when there are none to write."""
+    if vtk_dir is None or vtk_every <= 0:
+        yield None
+        return
+    with atomic_output(vtk_dir, VTK_FOLDER) as tmp:
+        tmp.mkdir()
+        yield tmp
 
 
 def drive(
@@ -114,17 +129,17 @@ def drive(
     world, _handles = make_world(bed, config)
     blade = add_blade(world, traj.position[0], config)
     centre_minus_tip = BladeGeometry.from_config(config).tip_offset
-    vtk = Path(vtk_dir) if vtk_dir is not None and vtk_every > 0 else None
-    if vtk is not None:
-        vtk.mkdir(parents=True, exist_ok=True)
     log_every = log_every or max(1, traj.steps // 20)
     stats = RunStats()
     x, y, z = grid.centres()
     start = wallclock.perf_counter()
     window: list[tuple[float, int, float, float, int]] = []
-    with FieldStoreWriter(
-        out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])
-    ) as writer:
+    with (
+        FieldStoreWriter(
+            out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])
+        ) as writer,
+        snapshots(vtk_dir, vtk_every) as vtk,
+    ):
         for i in tqdm(
             range(traj.steps), desc=f"simulate {attrs['scenario']}", unit="step", disable=None
         ):
@@ -177,7 +192,7 @@ def drive(
             world.velocities,
             world.angular_velocities,
             {"time": float(traj.time[-1])},
-        ).save(state_out)
+        ).save(state_out, STATE_FILE)
     return stats
 
 

@@ -23,6 +23,13 @@ per-chunk overhead, small enough that a batch of steps decodes little it did not
 :func:`dozerlab.fields.reader.read_field` reads this layout several times faster than zarr does.
 The store is built in a temporary sibling that is renamed on a successful close, so a failed run
 leaves nothing behind.
+
+Every byte is checksummed: each chunk of every array (each inner chunk of a shard) ends in its
+CRC32C (zarr's ``crc32c`` codec, last in the chain), and on close the group records the SHA-256
+of each array's ``zarr.json`` and of its other attributes (``metadata_sha256``).
+:func:`open_store` checks all of them (:func:`dozerlab.fields.reader.check_metadata`,
+:func:`~dozerlab.fields.reader.damaged_pieces`) and refuses a store without them
+(:class:`~dozerlab.fields.reader.UncheckedStoreError`, see :mod:`dozerlab.fields.reader` for why).
 """
 
 from __future__ import annotations
@@ -41,10 +48,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.core import sync as zarr_sync
 
-from dozerlab.fields.reader import DamagedStoreError, missing_pieces
+from dozerlab.fields.reader import (
+    DIGEST_ATTR,
+    DamagedStoreError,
+    check_metadata,
+    damaged_pieces,
+    metadata_digests,
+    read_field,
+    read_metadata,
+)
 from dozerlab.runtime import OutputKind, atomic_output
 
 if TYPE_CHECKING:
@@ -90,24 +105,61 @@ ATTRS = (
 )
 
 
-def is_field_store(path: Path) -> bool:
-    """A zarr group whose attributes carry ``dozerlab_version`` (every store this package writes)."""
-    meta = path / "zarr.json"
-    if not meta.is_file():
-        return False
-    doc = json.loads(meta.read_text())
-    return doc.get("node_type") == "group" and "dozerlab_version" in doc.get("attributes", {})
+#: The store attribute naming the command that wrote the store (an :class:`OutputKind`'s name).
+OUTPUT_ATTR = "dozerlab_output"
 
 
-#: What ``simulate`` and ``import-legacy`` write; an existing store of ours may be replaced.
-FIELD_STORE = OutputKind("a dozerlab field store", is_field_store)
+def store_output(attrs: dict[str, Any]) -> str:
+    """The command that wrote a store of these attributes: its :data:`OUTPUT_ATTR`, or for a
+    store written before that attribute, the one its attributes show (a reduced run names its
+    dynamics model, an import its legacy source)."""
+    if OUTPUT_ATTR in attrs:
+        return str(attrs[OUTPUT_ATTR])
+    if "dynamics_model" in attrs:
+        return "reduce"
+    return "import-legacy" if str(attrs.get("source", "")).startswith("legacy") else "simulate"
+
+
+def field_store_kind(what: str, name: str) -> OutputKind:
+    """The kind of a field store that command ``name`` writes: a zarr group of ours
+    (``dozerlab_version`` among its attributes) that ``name`` wrote (:func:`store_output`)."""
+
+    def recognise(path: Path) -> bool:
+        meta = path / "zarr.json"
+        if path.is_symlink() or not meta.is_file():
+            return False
+        doc = json.loads(meta.read_text())
+        attrs = doc.get("attributes", {})
+        return (
+            doc.get("node_type") == "group"
+            and "dozerlab_version" in attrs
+            and store_output(attrs) == name
+        )
+
+    return OutputKind(what, recognise, name)
+
+
+#: What ``simulate`` writes; only an earlier store of ``simulate`` may be replaced.
+FIELD_STORE = field_store_kind("a dozerlab field store written by simulate", "simulate")
 #: zarr skips chunks that hold only the fill value; written all, a missing one is damage, not a
-#: run of zeros (``reader.missing_pieces``, :func:`open_store`).
+#: run of zeros (``reader.damaged_pieces``, :func:`open_store`).
 _ALL_CHUNKS: ArrayConfigParams = {"write_empty_chunks": True}
 #: Steps per shard (``benchmarks/field_store_read.py`` compares 16/64/256).
 DEFAULT_CHUNK_STEPS = 64
 #: Steps per inner chunk of a shard.
 DEFAULT_INNER_STEPS = 8
+
+
+#: The data type of every array of a field store (``zarr.json`` ``data_type``).
+DTYPES = {"x": "float32", "y": "float32", "z": "float32", "time": "float64"} | dict.fromkeys(
+    SCHEMA, "float32"
+)
+
+
+def _checksummed(codec: Any) -> list[Any]:
+    """An array's bytes-to-bytes codecs: ``codec`` (one, a sequence, or none) then a CRC32C."""
+    codecs = list(codec) if isinstance(codec, (list, tuple)) else [codec]
+    return [c for c in codecs if not isinstance(c, Crc32cCodec)] + [Crc32cCodec()]
 
 
 def default_codec() -> BloscCodec:
@@ -153,8 +205,11 @@ class FieldStoreWriter:
             anything else is refused, :class:`~dozerlab.runtime.OutputExistsError`).
         x, y, z: bin-centre coordinates in the blade frame, m; shapes (Nx,), (Ny,), (Nz,).
         attrs: store attributes (docs/data.md); must be JSON-serialisable.
+        kind: the command's kind of store (default: ``simulate``'s, :data:`FIELD_STORE`); its
+            name is recorded as the attribute :data:`OUTPUT_ATTR`.
         chunk_steps: time steps per shard (>= 1).
-        codec: the fields' compressor (default :func:`default_codec`).
+        codec: the fields' compressor (default :func:`default_codec`; a sequence of codecs, or
+            ``()`` for none); every array's chain ends in a CRC32C whatever it is.
         inner_steps: time steps per inner chunk of a shard (must divide chunk_steps; default:
             ``gcd(chunk_steps, DEFAULT_INNER_STEPS)``).
     """
@@ -167,6 +222,7 @@ class FieldStoreWriter:
         y: np.ndarray,
         z: np.ndarray,
         attrs: Mapping[str, Any],
+        kind: OutputKind = FIELD_STORE,
         chunk_steps: int = DEFAULT_CHUNK_STEPS,
         codec: Any = None,
         inner_steps: int | None = None,
@@ -191,6 +247,8 @@ class FieldStoreWriter:
             self.attrs = json.loads(json.dumps(dict(attrs), allow_nan=False))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"store attrs must be JSON-serialisable without NaN: {exc}") from exc
+        self.kind = kind
+        self.attrs[OUTPUT_ATTR] = kind.name
         self.path = Path(path)
         self.chunk_steps = chunk_steps
         self.inner_steps = inner_steps
@@ -207,7 +265,7 @@ class FieldStoreWriter:
 
     def __enter__(self) -> FieldStoreWriter:
         self._stack = ExitStack()
-        tmp = self._stack.enter_context(atomic_output(self.path, FIELD_STORE))
+        tmp = self._stack.enter_context(atomic_output(self.path, self.kind))
         try:
             self._create(tmp)
         except BaseException:
@@ -224,13 +282,18 @@ class FieldStoreWriter:
                 shape=c.shape,
                 dtype="f4",
                 dimension_names=(name,),
-                compressors=None,
+                compressors=_checksummed(()),
                 config=_ALL_CHUNKS,
             )
             a[:] = c
             a.attrs.update({"units": "m", "long_name": f"bin centre {name}, blade frame"})
         comp = group.create_array(
-            "component", shape=(3,), dtype=str, dimension_names=("component",), config=_ALL_CHUNKS
+            "component",
+            shape=(3,),
+            dtype=str,
+            dimension_names=("component",),
+            compressors=_checksummed(()),
+            config=_ALL_CHUNKS,
         )
         comp[:] = np.array(COMPONENTS)
         n = self.chunk_steps
@@ -241,6 +304,7 @@ class FieldStoreWriter:
             dtype="f8",
             dimension_names=("time",),
             fill_value=0.0,
+            compressors=_checksummed(()),
             config=_ALL_CHUNKS,
         )
         t.attrs["units"] = "s"
@@ -257,7 +321,7 @@ class FieldStoreWriter:
                 dtype="f4",
                 dimension_names=dims,
                 fill_value=0.0,
-                compressors=self.codec if field else None,
+                compressors=_checksummed(self.codec if field else ()),
                 config=_ALL_CHUNKS,
             )
             a.attrs["units"] = UNITS[name]
@@ -265,6 +329,7 @@ class FieldStoreWriter:
             self._buf[name] = np.zeros((n, *shape), dtype=np.float32)
         group.attrs.update(self.attrs)
         self._group = group
+        self._tmp = tmp
 
     def append(
         self,
@@ -342,6 +407,8 @@ class FieldStoreWriter:
         if exc_type is None:
             try:
                 self._flush()
+                names = [*self.coords, "component", *self._arrays]
+                self._group.attrs[DIGEST_ATTR] = metadata_digests(self._tmp, names)
                 with warnings.catch_warnings():
                     # zarr notes that consolidated metadata is outside the v3 spec; xarray reads it.
                     warnings.simplefilter("ignore")
@@ -356,6 +423,7 @@ def write_store(
     path: str | Path,
     *,
     attrs: Mapping[str, Any],
+    kind: OutputKind = FIELD_STORE,
     chunk_steps: int = DEFAULT_CHUNK_STEPS,
     codec: Any = None,
     inner_steps: int | None = None,
@@ -381,6 +449,7 @@ def write_store(
             raise ValueError(f"{name} has {len(arrays[name])} steps but time has {time.size}")
     coords: dict[str, Any] = {k: arrays[k] for k in ("x", "y", "z")}
     options: dict[str, Any] = {
+        "kind": kind,
         "chunk_steps": chunk_steps,
         "codec": codec,
         "inner_steps": inner_steps,
@@ -395,16 +464,26 @@ def open_store(path: str | Path) -> xr.Dataset:
     """Open a field store lazily and check it against the schema and for damage.
 
     Raises ``ValueError`` naming every missing variable, coordinate or attribute and every
-    variable with the wrong dimensions, and :class:`~dozerlab.fields.reader.DamagedStoreError`
-    naming the array and the piece when a chunk its metadata implies is missing, when ``time``
-    is not finite and strictly increasing, or when a force, torque or blade series holds NaN/inf.
-    (The fields themselves are checked as :func:`~dozerlab.fields.reader.read_field` reads them.)
+    variable with the wrong dimensions or data type, and
+    :class:`~dozerlab.fields.reader.DamagedStoreError` naming the file, or the array and the
+    piece, when metadata or a chunk fails its checksum, when a chunk its metadata implies is
+    missing, when ``time`` is not finite and strictly increasing, or when a force, torque or
+    blade series holds NaN/inf; :class:`~dozerlab.fields.reader.UncheckedStoreError` for a store
+    written without checksums. Every chunk's encoded bytes are read once for their CRC32C
+    (decoding nothing); the fields' values are checked for NaN/inf as
+    :func:`~dozerlab.fields.reader.read_field` reads them.
     """
     import xarray as xr  # here: 0.4 s of importing xarray and pandas, which writers never need
 
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"field store not found: {path}")
+    group = read_metadata(path / "zarr.json") if (path / "zarr.json").is_file() else {}
+    # A store with checksums is checked before xarray reads its coordinates (zarr would raise
+    # a bare checksum error); one without is refused after the schema, which names what it is.
+    checked = DIGEST_ATTR in (group.get("attributes") or {})
+    if checked:
+        _check_bytes(path)
     try:
         ds = xr.open_zarr(path)
     except Exception as exc:  # zarr/xarray raise several kinds for a non-store directory
@@ -425,22 +504,46 @@ def open_store(path: str | Path) -> xr.Dataset:
         problems.append(f"missing attributes {missing_attrs}")
     if problems:
         raise ValueError(f"{path} is not a valid field store: " + "; ".join(problems))
-    _check_damage(path, ds)
+    if not checked:
+        check_metadata(path)  # raises UncheckedStoreError
+    _check_series(path, ds)
     return ds
 
 
-def _check_damage(path: Path, ds: xr.Dataset) -> None:
-    """Refuse lost chunks, a time axis that is not strictly increasing, NaN/inf in the series."""
-    lost = [
-        f"array '{name}': {', '.join(missing)}"
-        for name in (*SCHEMA, "time", "x", "y", "z", "component")
-        if (missing := missing_pieces(path, name))
+def _check_bytes(path: Path) -> None:
+    """Refuse a changed data type, changed metadata, lost or corrupt chunks (naming each)."""
+    for name, dtype in DTYPES.items():
+        file = path / name / "zarr.json"
+        if file.is_file() and (found := read_metadata(file).get("data_type")) != dtype:
+            raise DamagedStoreError(
+                f"{file} gives data type {found!r}, a field store's '{name}' is {dtype!r} (the "
+                "metadata was edited or damaged)"
+            )
+    damaged = [
+        f"array '{name}': {', '.join(pieces)}"
+        for name in check_metadata(path)
+        if (pieces := damaged_pieces(path, name))
     ]
-    if lost:
+    if damaged:
         raise DamagedStoreError(
-            f"{path} is damaged, pieces its metadata implies are missing (lost files, or a copy "
-            "cut short; zarr would read them as zeros): " + "; ".join(lost)
+            f"{path} is damaged (lost or changed files, or a copy cut short; re-run the job that "
+            "wrote it, or copy it again): " + "; ".join(damaged)
         )
+
+
+def verify_store(path: str | Path, window: int = 256) -> None:
+    """Check a whole field store (``dozerlab verify``): :func:`open_store`'s checks, then every
+    step of the fields decoded and checked for NaN/inf, ``window`` steps at a time (constant
+    memory); raises as they do."""
+    ds = open_store(path)
+    steps = ds.sizes["time"]
+    for name in ("velocity", "density"):
+        for start in range(0, steps, window):
+            read_field(path, name, start, start + window)
+
+
+def _check_series(path: Path, ds: xr.Dataset) -> None:
+    """Refuse a time axis that is not finite and strictly increasing, NaN/inf in the series."""
     t = np.asarray(ds["time"].values)
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:

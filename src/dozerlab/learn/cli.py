@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from dozerlab.cliargs import add_config, add_threads, configure, job
+from dozerlab.cliargs import add_command, add_config, add_threads, configure, job
 from dozerlab.learn.names import MODEL_NAMES
 
 
@@ -23,6 +23,7 @@ def add_training(
     sub: argparse._SubParsersAction,
     name: str,
     help: str,
+    example: str,
     *,
     run: str,
     models: Sequence[str] = MODEL_NAMES,
@@ -31,11 +32,12 @@ def add_training(
     report: tuple[str, str, str] = ("", "best validation loss", "samples"),
     loop_fields: bool = False,
 ) -> None:
-    """A training command: ``--model`` (one of ``models``) trained on ``--train`` stores into
+    """A training command (``help`` and ``example``: :func:`dozerlab.cliargs.add_command`):
+    ``--model`` (one of ``models``) trained on ``--train`` stores into
     ``--out`` (``results/{results}/NAME``) by the job ``run`` (``module:function``); ``report``
     (prefix, loss, samples) words the line it prints; ``loop_fields`` adds ``--loop-fields``.
     The defaults are those of the force models' ``train``."""
-    p = sub.add_parser(name, help=help)
+    p = add_command(sub, name, help, example)
     p.add_argument("--model", required=True, choices=models, help="model name")
     p.add_argument(
         "--train", required=True, nargs="+", metavar="F.zarr", help="training field stores"
@@ -64,6 +66,7 @@ def add_validation(
     sub: argparse._SubParsersAction,
     name: str,
     help: str,
+    example: str,
     *,
     run: str,
     models: str = "models",
@@ -71,11 +74,12 @@ def add_validation(
     plots: str = "the JSON path without .json",
     sections: str = "mlflow section",
 ) -> None:
-    """A validation command: the ``--model`` directory (``results/{models}/NAME``) on held-out
+    """A validation command (``help`` and ``example``: :func:`dozerlab.cliargs.add_command`):
+    the ``--model`` directory (``results/{models}/NAME``) on held-out
     stores, metrics to ``--out`` (``results/{results}/NAME.json``) and plots to ``--plots``
     (default: ``plots``) by the job ``run`` (``module:function``); the config's ``sections`` are
     read. The defaults are those of the force models' ``validate``."""
-    p = sub.add_parser(name, help=help)
+    p = add_command(sub, name, help, example)
     p.add_argument("--model", required=True, help=f"model directory (results/{models}/NAME)")
     add_held_out(p)
     p.add_argument("--out", required=True, help=f"JSON to write (results/{results}/NAME.json)")
@@ -90,17 +94,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         sub,
         "train",
         "train one force/torque model on field stores",
+        "python -m dozerlab train --model linear --config config/quick.yaml \\\n"
+        "      --train results/fields/hill/speed~1.0_depth~0.04.zarr \\\n"
+        "              results/fields/hill/speed~1.5_depth~0.04.zarr \\\n"
+        "      --out results/models/linear",
         run="dozerlab.learn.jobs:train_job",
         loop_fields=True,
     )
     add_validation(
         sub,
         "validate",
-        "metrics and plots of a model on held-out sweep points",
+        "measure a force model on held-out sweep points: metrics (JSON) and plots",
+        "python -m dozerlab validate --model results/models/linear --config config/quick.yaml \\\n"
+        "      --interpolation results/fields/hill/speed~1.25_depth~0.06.zarr \\\n"
+        "      --extrapolation results/fields/hill/speed~0.75_depth~0.08.zarr \\\n"
+        "      --out results/validation/linear.json",
         run="dozerlab.learn.jobs:validate_job",
     )
 
-    p = sub.add_parser("evaluate", help="print a model's metrics on field stores")
+    p = add_command(
+        sub,
+        "evaluate",
+        "print a force model's metrics on field stores",
+        "python -m dozerlab evaluate --model results/models/linear \\\n"
+        "      results/fields/hill/speed~1.25_depth~0.06.zarr",
+    )
     p.add_argument("--model", required=True, help="model directory")
     p.add_argument("stores", nargs="+", metavar="STORE", help="field stores")
     add_threads(p, help="thread budget")
@@ -113,7 +131,7 @@ def _train(args: argparse.Namespace) -> int:
     result = job(args.run)(args.model, args.train, config, args.out, device=args.device, **extra)
     prefix, loss, samples = args.report
     print(
-        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch} "
+        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch + 1} "
         f"({result.samples['train']} training {samples}, {result.seconds:.1f} s) -> {args.out}"
     )
     return 0

@@ -145,15 +145,19 @@ def check_grid(
     stores: list[StoreData],
     grid: tuple[int, int, int] | None = None,
     bin_size: Sequence[float] | None = None,
+    *,
+    distinct: bool = True,
 ) -> tuple[int, int, int]:
     """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch.
 
     ``bin_size`` (m; default: the first store's that has one) must match every store's that
     has one: a model learns forces per bin, so the same bin counts over another volume are
-    other fields.
+    other fields. With ``distinct``, the stores are of distinct points (:func:`check_distinct`).
     """
     if not stores:
         raise ValueError("no field stores given (at least one is needed)")
+    if distinct:
+        check_distinct(stores)
     expected = stores[0].grid if grid is None else (int(grid[0]), int(grid[1]), int(grid[2]))
     sizes = [s.bin_size for s in stores if s.bin_size is not None]
     size = tuple(bin_size) if bin_size is not None else (sizes[0] if sizes else None)
@@ -175,6 +179,25 @@ def check_grid(
     return expected
 
 
+def check_distinct(stores: list[StoreData]) -> None:
+    """Refuse (DozerlabError naming both) two stores that are one file or one sweep point: a
+    point given twice would count twice in training and in every mean over points."""
+    seen: dict[Any, StoreData] = {}
+    for s in stores:
+        keys: list[tuple[str, Any]] = [("file", str(Path(s.source).resolve()))] if s.source else []
+        if (point := point_key(s.point)) is not None:
+            keys.append(("point", point))
+        for key in keys:
+            if key in seen:
+                first = seen[key]
+                why = "the same file" if key[0] == "file" else f"the same sweep point ({s.name})"
+                raise DozerlabError(
+                    f"field stores {first.source or first.name} and {s.source or s.name} are "
+                    f"{why}; give each point once"
+                )
+            seen.setdefault(key, s)
+
+
 def with_loop_fields(ndem: StoreData, loop: StoreData) -> StoreData:
     """``ndem``'s samples with the velocity and density of ``loop``, the reduced loop's run of
     the same point: the fields the loop makes, paired row by row with NDEM's force and torque.
@@ -187,7 +210,7 @@ def with_loop_fields(ndem: StoreData, loop: StoreData) -> StoreData:
     what = f"{loop.source or loop.name} (loop fields) and {ndem.source or ndem.name} (NDEM)"
     if point_key(loop.point) != point_key(ndem.point):
         raise DozerlabError(f"{what} are runs of different points: {loop.point} and {ndem.point}")
-    check_grid([ndem, loop])
+    check_grid([ndem, loop], distinct=False)
     if loop.time.shape != ndem.time.shape or not np.allclose(loop.time, ndem.time, atol=1e-6):
         raise DozerlabError(
             f"{what} have different rows ({loop.time.size} and {ndem.time.size}, or other "

@@ -20,8 +20,37 @@ class TrainingDiverged(DozerlabError):
 
 
 def device_for(name: str | None = None) -> torch.device:
-    """``name`` if given, else CUDA when present, else CPU."""
-    return torch.device(name or ("cuda" if torch.cuda.is_available() else "cpu"))
+    """``name`` if given, else CUDA when present, else CPU. A name that is no torch device, or
+    a device this machine lacks (``cuda`` without CUDA, ``cuda:3`` with two GPUs, ``mps`` off
+    Apple), is refused with :class:`DozerlabError` naming it (``--device``)."""
+    if not name:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise DozerlabError(
+            f"--device '{name}' is not a torch device (allowed: cpu, cuda, cuda:N, mps)"
+        ) from None
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise DozerlabError(
+                f"--device '{name}': CUDA is not available here (torch {torch.__version__}, "
+                f"{'built without CUDA' if torch.version.cuda is None else 'no GPU visible'}); "
+                "use --device cpu or leave --device out"
+            )
+        if device.index is not None and device.index >= count:
+            raise DozerlabError(
+                f"--device '{name}': this machine has {count} CUDA device(s) "
+                f"(allowed: cuda:0 to cuda:{count - 1})"
+            )
+    elif device.type == "mps" and not torch.backends.mps.is_available():
+        raise DozerlabError(
+            f"--device '{name}': Apple's MPS is not available here; use --device cpu"
+        )
+    elif device.type not in ("cpu", "mps"):
+        raise DozerlabError(f"--device '{name}' is not supported (allowed: cpu, cuda, cuda:N, mps)")
+    return device
 
 
 #: ``on_epoch(epoch, train_loss, val_loss)``, called after each epoch.

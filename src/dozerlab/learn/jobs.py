@@ -14,17 +14,30 @@ import numpy as np
 from dozerlab import tracking
 from dozerlab.learn import pyfunc
 from dozerlab.learn.data import StoreData, check_grid, load_store, point_key, with_loop_fields
+from dozerlab.learn.fitting import device_for
 from dozerlab.learn.metrics import flat
 from dozerlab.learn.plots import loss_curves
+from dozerlab.learn.pyfunc import MODEL_DIR
 from dozerlab.learn.train import EpochCallback, TrainResult, train_model
 from dozerlab.learn.validate import evaluate, load_groups, strip_series, validate
-from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, check_output, json_with
+from dozerlab.runtime import (
+    DozerlabError,
+    OutputKind,
+    atomic_output,
+    job_outputs,
+    json_with,
+    marked_folder,
+)
 from dozerlab.tracking import JobRun
 
 #: What ``validate`` writes beside its plots: the metrics JSON.
 VALIDATION_JSON = OutputKind(
-    "a dozerlab validation JSON", json_with(("model", "groups", "overall", "summary"))
+    "a dozerlab validation JSON",
+    json_with(("model", "groups", "overall", "summary"), without=("horizon",)),
+    "validate",
 )
+#: ``validate``'s plots: a folder built whole (the JSON's plot paths point into it).
+VALIDATION_PLOTS = marked_folder("a dozerlab folder of validation plots", "validation-plots")
 
 
 def training_meta(stores: list[StoreData], train: list[str | Path]) -> dict[str, Any]:
@@ -79,7 +92,9 @@ class Family:
     per-epoch metrics; ``fit(kind, stores, config, **FitOptions)`` trains; ``pyfunc`` writes the
     model directory; ``recorded(config)`` gives the config parts recorded in the model's
     metadata and in the run's params; ``fit_metrics(model, stores)`` adds metrics on the
-    training stores to the run.
+    training stores to the run. ``output`` is the kind of model directory the family's
+    command writes; ``family`` (``force``, ``evolution``) names the family in run
+    names and Model Registry names (:func:`dozerlab.tracking.registered_name`).
     """
 
     title: str
@@ -89,6 +104,8 @@ class Family:
     pyfunc: pyfunc.PyfuncFormat
     recorded: Callable[[dict[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     fit_metrics: Callable[[Any, list[StoreData]], dict[str, float]] = lambda model, stores: {}
+    output: OutputKind = MODEL_DIR
+    family: str = "force"
 
 
 def _force_recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -126,7 +143,21 @@ def train_job(
     (:func:`~dozerlab.learn.data.with_loop_fields`): the force model of the reduced loop,
     the workflow's rule ``train_loop_force``.
     """
-    check_output(out, pyfunc.MODEL_DIR)  # refuse a wrong --out before training, not after
+    with job_outputs(("--out", out, family.output)):  # a wrong --out fails before training
+        device_for(device)  # and a device this machine lacks
+        return _train(kind, train, config, out, device, progress, family, loop_fields)
+
+
+def _train(
+    kind: str,
+    train: list[str | Path],
+    config: dict[str, Any],
+    out: str | Path,
+    device: str | None,
+    progress: bool,
+    family: Family,
+    loop_fields: list[str | Path] | None,
+) -> TrainResult:
     stores = [load_store(p) for p in train]
     rule, tags = family.rule, {"model": kind}
     if loop_fields:
@@ -141,6 +172,8 @@ def train_job(
             with_loop_fields(s, load_store(f)) for s, f in zip(stores, loop_fields, strict=True)
         ]
         rule, tags = "train_loop_force", tags | {"fields": "loop"}
+        if dynamics_model := loop_dynamics_model(loop_fields[0]):
+            tags["dynamics_model"] = dynamics_model
     check_grid(stores)  # counts and sizes of the bins agree
     seed = config.get("seed")
     meta_parts, param_parts = family.recorded(config)
@@ -151,7 +184,12 @@ def train_job(
         meta["loop_fields"] = [str(Path(p).resolve()) for p in loop_fields]
         params["loop_fields"] = ",".join(str(p) for p in loop_fields)
     name = f"{family.title}{kind}" + (" on the loop's fields" if loop_fields else "")
-    with tracking.job_run(config, f"train {name}", rule=rule, tags=tags, params=params) as run:
+    # the loop's force model: <kind>-loop-<dynamics model>, not to be confused with <kind>
+    model_name = (
+        "-".join([kind, "loop", tags.get("dynamics_model", "")]).strip("-") if loop_fields else kind
+    )
+    run_name = tracking.run_name("train", family.family, model_name)
+    with tracking.job_run(config, run_name, rule=rule, tags=tags, params=params) as run:
         log_epoch = epoch_logger(run, family.val_metric)
         result = family.fit(
             kind, stores, config, device=device, on_epoch=log_epoch, progress=progress
@@ -159,7 +197,7 @@ def train_job(
         meta.update(result_meta(result))
         model = result.model.cpu()
         example = store_arrays(stores[0])
-        with atomic_output(out, pyfunc.MODEL_DIR) as tmp:
+        with atomic_output(out, family.output) as tmp:
             family.pyfunc.save(model, meta, tmp, example)
         if run is not None:
             run.log_metrics(
@@ -173,8 +211,17 @@ def train_job(
             with tempfile.TemporaryDirectory() as d:
                 png = loss_curves(result.train_loss, result.val_loss, Path(d) / "loss.png", name)
                 run.log_artifact(png)
-            result.model_uri = run.log_model(out)
+            registered = tracking.registered_name(config, family.family, model_name)
+            result.model_uri = run.log_model(out, registered)
     return result
+
+
+def loop_dynamics_model(store: str | Path) -> str:
+    """The dynamics model whose reduced loop wrote ``store`` (its ``dynamics_model`` attribute),
+    "" if the store does not say."""
+    from dozerlab.fields.store import open_store
+
+    return str(open_store(store).attrs.get("dynamics_model", ""))
 
 
 def held_out_params(
@@ -215,21 +262,28 @@ def validate_job(
     config: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
-    named after ``out``) and an MLflow validate run."""
+    named after ``out``, built whole: :data:`VALIDATION_PLOTS`) and an MLflow validate run.
+    Both outputs are checked before any work; a failure leaves neither."""
     out = Path(out)
-    check_output(out, VALIDATION_JSON)
-    model, meta = pyfunc.load(model_dir)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
-    groups = load_groups(interpolation, extrapolation)
-    params = held_out_params(model_dir, interpolation, extrapolation)
-    with tracking.job_run(
-        config, f"validate {model.kind}", rule="validate", tags={"model": model.kind}, params=params
-    ) as run:
-        result = validate(model, meta, groups, pdir, out.parent)
-        metrics = flat(result["overall"], "overall")
-        for g, data in result["groups"].items():
-            metrics.update(flat(data["overall"], g))
-        record_validation(run, result, out, VALIDATION_JSON, metrics, pdir)
+    with job_outputs(("--out", out, VALIDATION_JSON), ("--plots", pdir, VALIDATION_PLOTS)):
+        model, meta = pyfunc.load(model_dir)
+        groups = load_groups(interpolation, extrapolation)
+        params = held_out_params(model_dir, interpolation, extrapolation)
+        with tracking.job_run(
+            config,
+            tracking.run_name("validate", FORCE.family, model.kind),
+            rule="validate",
+            tags={"model": model.kind},
+            params=params,
+        ) as run:
+            with atomic_output(pdir, VALIDATION_PLOTS) as tmp:
+                tmp.mkdir()
+                result = validate(model, meta, groups, tmp, out.parent, plots_at=pdir)
+            metrics = flat(result["overall"], "overall")
+            for g, data in result["groups"].items():
+                metrics.update(flat(data["overall"], g))
+            record_validation(run, result, out, VALIDATION_JSON, metrics, pdir)
     return result
 
 

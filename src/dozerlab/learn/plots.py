@@ -52,9 +52,13 @@ def draw_losses(ax: Any, train_loss: list[float], val_loss: list[float], title: 
             title=f"{title}\nclosed-form fit: one solve, no epochs" if title else "closed-form fit",
         )
         return
-    epochs = np.arange(len(train_loss))
+    # epochs numbered from 1, as the report and the console count them; the kept model is the
+    # one of the lowest validation loss (early stopping restores it)
+    epochs = np.arange(1, len(train_loss) + 1)
     ax.plot(epochs, train_loss, "o-" if len(epochs) < 3 else "-", label="training")
     ax.plot(epochs, val_loss, "o-" if len(epochs) < 3 else "-", label="validation (early stopping)")
+    best = int(np.argmin(val_loss))
+    ax.plot(epochs[best], val_loss[best], "k*", ms=11, label=f"kept: epoch {epochs[best]}")
     ax.set(xlabel="epoch", ylabel="MSE of normalised targets", yscale="log", title=title)
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.legend()
@@ -63,13 +67,14 @@ def draw_losses(ax: Any, train_loss: list[float], val_loss: list[float], title: 
 def force_series(
     time: np.ndarray, pred: np.ndarray, true: np.ndarray, path: str | Path, title: str = ""
 ) -> Path:
-    """Predicted vs measured force components (N) over time (s) for one sweep point."""
+    """Predicted vs measured force components over time (s) for one sweep point, given in N
+    and drawn in kN."""
     fig, axes = _figure(3, width=4.2)
     for i, comp in enumerate("xyz"):
         ax = axes[0, i]
-        ax.plot(time, true[:, i], color="k", lw=1, label="measured")
-        ax.plot(time, pred[:, i], color="tab:red", lw=1, label="predicted")
-        ax.set(xlabel="time (s)", ylabel=f"force {comp} (N)")
+        ax.plot(time, true[:, i] / 1000.0, color="k", lw=1, label="measured")
+        ax.plot(time, pred[:, i] / 1000.0, color="tab:red", lw=1, label="predicted")
+        ax.set(xlabel="time (s)", ylabel=f"force {comp} (kN)")
     axes[0, 0].legend()
     fig.suptitle(title)
     return _save(fig, Path(path))
@@ -78,22 +83,21 @@ def force_series(
 def parity(
     groups: dict[str, tuple[np.ndarray, np.ndarray]], path: str | Path, title: str = ""
 ) -> Path:
-    """Predicted vs measured force x and z (N) for each group of held-out points."""
+    """Predicted vs measured force x and z for each group of held-out points, given in N and
+    drawn in kN."""
     fig, axes = _figure(2, width=4.2, height=4.2)
     for ax, i, comp in ((axes[0, 0], 0, "x"), (axes[0, 1], 2, "z")):
         lo, hi = np.inf, -np.inf
         for name, (pred, true) in groups.items():
             if len(true):
-                ax.scatter(true[:, i], pred[:, i], s=4, alpha=0.5, label=name)
-                lo, hi = (
-                    min(lo, true[:, i].min(), pred[:, i].min()),
-                    max(hi, true[:, i].max(), pred[:, i].max()),
-                )
+                t, p = true[:, i] / 1000.0, pred[:, i] / 1000.0
+                ax.scatter(t, p, s=4, alpha=0.5, label=name)
+                lo, hi = min(lo, t.min(), p.min()), max(hi, t.max(), p.max())
         if np.isfinite(lo):
             ax.plot([lo, hi], [lo, hi], "k--", lw=1)
         ax.set(
-            xlabel=f"measured force {comp} (N)",
-            ylabel=f"predicted force {comp} (N)",
+            xlabel=f"measured force {comp} (kN)",
+            ylabel=f"predicted force {comp} (kN)",
             aspect="equal",
         )
     axes[0, 0].legend()

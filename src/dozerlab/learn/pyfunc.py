@@ -12,6 +12,13 @@ first H-1 rows, which lack a full history, repeat their earliest available step.
 
 The directory holds ``artifacts/weights.pt`` (a state dict, loaded with ``weights_only=True``)
 and ``artifacts/meta.json`` (architecture, grid, training points, loss history).
+
+Every byte is checked on loading: at saving, ``meta.json`` records the SHA-256 of every other
+file of the directory (``files_sha256``, by path relative to it) and of its own content
+(``meta_sha256``, canonical JSON without that key); :func:`verify_model_dir` compares them and
+refuses a changed, cut-short or missing file by name before torch reads a byte. A directory
+saved before these digests existed is refused with the remedy (re-run ``dozerlab train``): its
+files cannot be told from damaged ones, and a changed weight is a silently different model.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from dozerlab.integrity import DamagedFileError, read_json, sha256_file, sha256_json
 from dozerlab.learn.data import TARGET_NAMES
 from dozerlab.learn.models import ForceModel
 from dozerlab.runtime import DozerlabError, OutputKind
@@ -37,18 +45,26 @@ if TYPE_CHECKING:
 INPUT_NAMES = ("velocity", "density", "blade_velocity")
 
 
-def is_model_dir(path: Path) -> bool:
-    """An MLflow model directory holding this package's ``artifacts/meta.json`` and weights."""
-    art = path / "artifacts"
-    return (
-        (path / "MLmodel").is_file()
-        and (art / "weights.pt").is_file()
-        and "kind" in json.loads((art / "meta.json").read_text())
-    )
+def model_dir_kind(what: str, name: str, evolution: bool) -> OutputKind:
+    """The kind of a model directory that command ``name`` writes: an MLflow model directory
+    holding this package's ``artifacts/meta.json`` and weights, of an evolution model (its
+    metadata has a ``horizon``) or not, as ``evolution`` says, so that ``train`` never replaces
+    an evolution model nor ``train-dynamics`` a force model."""
+
+    def recognise(path: Path) -> bool:
+        art = path / "artifacts"
+        if path.is_symlink() or not (path / "MLmodel").is_file():
+            return False
+        meta = json.loads((art / "meta.json").read_text())
+        return (
+            (art / "weights.pt").is_file() and "kind" in meta and ("horizon" in meta) == evolution
+        )
+
+    return OutputKind(what, recognise, name)
 
 
-#: What ``dozerlab train`` writes; an earlier model of ours at ``--out`` may be replaced.
-MODEL_DIR = OutputKind("a dozerlab model directory (MLmodel + artifacts/meta.json)", is_model_dir)
+#: What ``dozerlab train`` writes; an earlier force model of ours at ``--out`` may be replaced.
+MODEL_DIR = model_dir_kind("a dozerlab force model directory (written by train)", "train", False)
 
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:
@@ -155,14 +171,69 @@ def write_artifacts(model: Any, meta: dict[str, Any], workdir: Path) -> dict[str
     return {"weights": str(weights), "meta": str(meta_path)}
 
 
-def read_artifacts(path: str | Path, what: str = "dozerlab model") -> tuple[dict[str, Any], Path]:
-    """The metadata and weights file of a saved model directory (FileNotFoundError if absent)."""
-    art = Path(path) / "artifacts"
+#: ``meta.json``'s record of the SHA-256 of every other file of the directory, by relative path.
+FILES_KEY = "files_sha256"
+#: ``meta.json``'s record of the SHA-256 of its own content (canonical JSON without this key).
+META_KEY = "meta_sha256"
+
+
+def seal(path: str | Path) -> None:
+    """Record the SHA-256 of every file of the saved model directory ``path``, and of the
+    metadata itself, in its ``artifacts/meta.json`` (what :func:`verify_model_dir` checks)."""
+    path = Path(path)
+    meta_file = path / "artifacts" / "meta.json"
+    meta = json.loads(meta_file.read_text())
+    files = sorted(f for f in path.rglob("*") if f.is_file() and f != meta_file)
+    meta[FILES_KEY] = {f.relative_to(path).as_posix(): sha256_file(f) for f in files}
+    meta[META_KEY] = sha256_json(meta)
+    meta_file.write_text(json.dumps(meta, indent=1))
+
+
+def verify_model_dir(path: str | Path, what: str = "dozerlab model") -> dict[str, Any]:
+    """Check every file of a saved model directory against the digests in its ``meta.json``;
+    return the metadata.
+
+    Raises :class:`FileNotFoundError` for a directory without ``artifacts/meta.json`` and
+    ``weights.pt``, and :class:`~dozerlab.integrity.DamagedFileError` naming the file when
+    ``meta.json`` is not JSON or differs from its recorded digest, when a recorded file is
+    missing or its bytes differ, or when the directory has no digests (saved before them).
+    """
+    path = Path(path)
+    art = path / "artifacts"
     if not (art / "meta.json").is_file() or not (art / "weights.pt").is_file():
         raise FileNotFoundError(
             f"not a {what} directory (no artifacts/meta.json, weights.pt): {path}"
         )
-    return json.loads((art / "meta.json").read_text()), art / "weights.pt"
+    remedy = f"re-run the `train` that wrote it, or copy {path} again"
+    meta = read_json(art / "meta.json", f"a {what}'s metadata")
+    if not isinstance(meta, dict) or not isinstance(meta.get(FILES_KEY), dict):
+        raise DamagedFileError(
+            f"{art / 'meta.json'} records no SHA-256 of the model's files (saved by a dozerlab "
+            f"older than them, or not a {what}'s), so they cannot be verified; {remedy}"
+        )
+    if meta.get(META_KEY) != sha256_json({k: v for k, v in meta.items() if k != META_KEY}):
+        raise DamagedFileError(
+            f"{art / 'meta.json'} is damaged: its content differs from the SHA-256 recorded at "
+            f"saving; {remedy}"
+        )
+    for name, digest in meta[FILES_KEY].items():
+        file = path / name
+        if not file.is_file():
+            raise DamagedFileError(f"{file} is missing (recorded in meta.json); {remedy}")
+        if sha256_file(file) != digest:
+            raise DamagedFileError(
+                f"{file} is damaged: its bytes differ from the SHA-256 recorded at saving (cut "
+                f"short or changed); {remedy}"
+            )
+    if "artifacts/weights.pt" not in meta[FILES_KEY]:
+        raise DamagedFileError(f"{art / 'meta.json'} records no digest of weights.pt; {remedy}")
+    return meta
+
+
+def read_artifacts(path: str | Path, what: str = "dozerlab model") -> tuple[dict[str, Any], Path]:
+    """The metadata and weights file of a saved model directory, every file checked
+    (:func:`verify_model_dir`)."""
+    return verify_model_dir(path, what), Path(path) / "artifacts" / "weights.pt"
 
 
 @dataclass(frozen=True)
@@ -207,6 +278,7 @@ class PyfuncFormat:
 
         with tempfile.TemporaryDirectory() as tmp:
             mlflow.pyfunc.save_model(path=str(path), **self.kwargs(model, meta, Path(tmp), arrays))
+        seal(path)
 
     def load(self, path: str | Path) -> tuple[Any, dict[str, Any]]:
         """Load a saved model directory directly (no MLflow runtime): the model and its

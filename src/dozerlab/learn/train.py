@@ -167,7 +167,7 @@ def fit_ridge(model: ForceModel, train: Batches, alpha: float, chunk: int = 256)
         # odd features and targets have zero mean by symmetry: no intercept, so that the odd
         # prediction changes sign exactly with the mirrored input
         w, b = solve_ridge(torch.cat(part), y_all[:, head.target_odd == odd], alpha, center=not odd)
-        _guard(float(w.abs().max()), "the ridge solution")
+        guard(float(w.abs().max()), "the ridge solution", "raise learn.ridge_alpha")
         fc.weight.copy_(w.T.float())
         fc.bias.copy_(b.float())
 

@@ -98,10 +98,12 @@ def validate(
     held_out: dict[str, list[StoreData]],
     plots_dir: str | Path | None = None,
     json_dir: str | Path | None = None,
+    plots_at: str | Path | None = None,
 ) -> dict[str, Any]:
     """Validate on held-out stores grouped as ``{"interpolation": [...], "extrapolation": [...]}``.
 
-    Writes plots into ``plots_dir`` when given; their paths in the result are relative to
+    Writes plots into ``plots_dir`` when given; their paths in the result are those in
+    ``plots_at`` (where that folder will be moved; default ``plots_dir``), relative to
     ``json_dir`` (where the JSON will live). Raises DozerlabError on a grid mismatch or a
     held-out point that was a training point.
     """
@@ -134,15 +136,20 @@ def validate(
     }
     if plots_dir is not None:
         result["plots"] = _make_plots(
-            model.kind, meta, groups, Path(plots_dir), Path(json_dir or plots_dir)
+            model.kind, meta, groups, Path(plots_dir), Path(json_dir or plots_dir), plots_at
         )
     return result
 
 
 def _make_plots(
-    kind: str, meta: dict[str, Any], groups: dict[str, Any], pdir: Path, base: Path
+    kind: str,
+    meta: dict[str, Any],
+    groups: dict[str, Any],
+    pdir: Path,
+    base: Path,
+    plots_at: str | Path | None,
 ) -> dict[str, Any]:
-    rel = lambda p: os.path.relpath(p, base)  # noqa: E731
+    rel = lambda p: os.path.relpath(Path(plots_at or pdir) / Path(p).name, base)  # noqa: E731
     out: dict[str, Any] = {"series": {}}
     if meta.get("train_loss"):
         out["loss"] = rel(

@@ -1,4 +1,8 @@
-"""Saving and loading a World's parts as one ``.npz`` (no pickles), e.g. to reuse a settled bed."""
+"""Saving and loading a World's parts as one ``.npz`` (no pickles), e.g. to reuse a settled bed.
+
+Loading checks every array's CRC-32 (:func:`dozerlab.integrity.read_npz`) and refuses NaN/inf
+in the parameters and the sphere state; saving refuses a state holding them.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from dozerlab.integrity import read_npz, require_finite
 from dozerlab.ndem.bodies import FIELDS as BODY_FIELDS
 from dozerlab.ndem.bodies import Bodies
 from dozerlab.ndem.params import NAMES, Parameters
@@ -36,17 +41,18 @@ def save_world(path: str | Path, params: Parameters, state: WorldState, bodies: 
         "warm_hi": state.warm.hi,
         "warm_lam": state.warm.lam,
     }
+    require_finite(path, arrays, [k for k in arrays if k.startswith(("param_", "sphere_"))])
     with atomic_output(path, WORLD_FILE) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
 
 
 def load_world(path: str | Path) -> tuple[Parameters, WorldState, Bodies]:
     """The parameters, state and bodies in a file written by :func:`save_world`."""
-    with np.load(path, allow_pickle=False) as f:
-        if "format_version" not in f or int(f["format_version"]) != FORMAT_VERSION:
-            raise DozerlabError(
-                f"{path} is not a dozerlab.ndem World file (format {FORMAT_VERSION})"
-            )
+    f = read_npz(path, "a dozerlab.ndem World file", ())
+    if "format_version" not in f or int(f["format_version"]) != FORMAT_VERSION:
+        raise DozerlabError(f"{path} is not a dozerlab.ndem World file (format {FORMAT_VERSION})")
+    require_finite(path, f, [k for k in f if k.startswith(("param_", "sphere_"))])
+    try:
         given = {p: f[f"param_{p}"].item() for p in SCALARS if f"param_{p}" in f}
         params = Parameters(**given, gravity=f["param_gravity"])
         state = WorldState(time=float(f["param_time"]), step_count=int(f["param_step_count"]))
@@ -67,4 +73,6 @@ def load_world(path: str | Path) -> tuple[Parameters, WorldState, Bodies]:
         bodies.force = f["body_force"].copy()
         bodies.torque = f["body_torque"].copy()
         bodies.load_center = bodies.center.copy()
+    except KeyError as exc:
+        raise DozerlabError(f"{path} is not a dozerlab.ndem World file: it lacks {exc}") from exc
     return params, state, bodies

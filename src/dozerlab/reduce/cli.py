@@ -3,17 +3,34 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import PurePosixPath
 
-from dozerlab.cliargs import add_config, add_labels, add_run_inputs, add_threads, configure, labels
+from dozerlab.cliargs import (
+    add_command,
+    add_config,
+    add_labels,
+    add_run_inputs,
+    add_threads,
+    configure,
+    labels,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "reduce", help="run a sweep point with the reduced loop (learned fields + projection)"
+    p = add_command(
+        sub,
+        "reduce",
+        "run a sweep point with the reduced loop (learned fields + projection)",
+        "python -m dozerlab reduce --config config/quick.yaml --bed results/beds/hill.npz \\\n"
+        "      --trajectory results/trajectories/hill/speed~1.25_depth~0.06.csv \\\n"
+        "      --ndem results/fields/hill/speed~1.25_depth~0.06.zarr \\\n"
+        "      --dynamics results/dynamics/ridge --force-model results/reduced/ridge/force_model \\\n"
+        "      --out results/reduced/ridge/hill/speed~1.25_depth~0.06.zarr \\\n"
+        "      --state results/reduced/ridge/hill/speed~1.25_depth~0.06.npz",
     )
     add_run_inputs(p)
     _add_models(p)
-    p.add_argument("--ndem", default=None, help="the point's NDEM field store (for replay)")
+    p.add_argument("--ndem", default=None, help="the point's NDEM store (replay plays it back)")
     add_config(p)
     p.add_argument("--out", required=True, help="field store to write (.zarr)")
     p.add_argument("--state", required=True, help="final particle state to write (.npz)")
@@ -21,10 +38,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_labels(p)
     p.set_defaults(func=_reduce)
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "reduce-points",
-        help="run several sweep points with one pair of models in one process (the workflow's "
-        "training-point runs), reading and writing the workflow's paths under --results",
+        "run the reduced loop on several sweep points in one process, on the paths under --results",
+        "python -m dozerlab reduce-points --config config/quick.yaml --results results \\\n"
+        "      --dynamics-model ridge --dynamics results/dynamics/ridge \\\n"
+        "      --force-model results/models/linear \\\n"
+        "      --points hill/speed~1.0_depth~0.04 hill/speed~1.5_depth~0.04",
     )
     p.add_argument("--results", default="results", help="the workflow's results folder")
     p.add_argument(
@@ -43,11 +64,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_threads(p, help="numba/torch threads (default 1)")
     p.set_defaults(func=_reduce_points)
 
-    p = sub.add_parser(
+    p = add_command(
+        sub,
         "compare-reduced",
-        help="measure a dynamics model's reduced runs against NDEM (held-out points)",
+        "measure a dynamics model's reduced runs against NDEM on the held-out points",
+        "python -m dozerlab compare-reduced --dynamics-model ridge --config config/quick.yaml \\\n"
+        "      --results results --out results/reduced/ridge.json \\\n"
+        "      --plots results/reduced/ridge/compare",
     )
-    p.add_argument("--dynamics-model", required=True, help="dynamics model name (or replay)")
+    p.add_argument("--dynamics-model", required=True, help="model name, or replay (NDEM's fields)")
     add_config(p)
     p.add_argument("--results", default="results", help="the workflow's results folder")
     p.add_argument("--out", required=True, help="JSON to write (results/reduced/NAME.json)")
@@ -93,8 +118,19 @@ def _reduce(args: argparse.Namespace) -> int:
 
 def _reduce_points(args: argparse.Namespace) -> int:
     from dozerlab import sweep as P
+    from dozerlab.runtime import check_name
 
+    for text in args.points:
+        parts = PurePosixPath(text).parts
+        if len(parts) != 2:
+            raise ValueError(f"--points {text!r} is not SCENARIO/speed~V_depth~D")
+        check_name(parts[0], "--points scenario")
     points = [P.parse_point(text) for text in args.points]  # a misnamed one: ValueError, exit 2
+    seen: dict[tuple[str, str], str] = {}
+    for text, point in zip(args.points, points, strict=True):
+        if point.key in seen:  # one run would be written twice, and counted twice
+            raise ValueError(f"--points {seen[point.key]} and {text} are one point; give it once")
+        seen[point.key] = text
     config = configure(args)
     from dozerlab.reduce.jobs import reduce_points_job
 

@@ -13,12 +13,14 @@ import numpy as np
 
 from dozerlab import sweep as P
 from dozerlab.runtime import (
-    FIGURE_DIR,
     DozerlabError,
     OutputKind,
     atomic_output,
+    check_name,
     freeze_heap,
+    job_outputs,
     json_with,
+    marked_folder,
 )
 
 log = logging.getLogger(__name__)
@@ -26,8 +28,12 @@ log = logging.getLogger(__name__)
 #: Per-role summary of the comparison: how each figure is aggregated over the points.
 #: What ``compare-reduced`` writes: the reduced runs measured against NDEM.
 COMPARISON_JSON = OutputKind(
-    "a dozerlab reduced-run comparison JSON", json_with(("dynamics_model", "points", "overall"))
+    "a dozerlab reduced-run comparison JSON",
+    json_with(("dynamics_model", "points", "overall")),
+    "compare-reduced",
 )
+#: ``compare-reduced``'s plots and animations: a folder built whole.
+COMPARISON_PLOTS = marked_folder("a dozerlab folder of reduced-run comparisons", "compare-plots")
 AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
     "height_accuracy": np.mean,
     "force_x_rel_rmse": np.mean,
@@ -61,13 +67,15 @@ def reduce_job(
     (the heap frozen once the models are loaded, :func:`dozerlab.runtime.freeze_heap`)."""
     from dozerlab.fields.sampling import SamplingGrid
     from dozerlab.reduce.models import ForcePredictor, load_field_model
+    from dozerlab.reduce.run import REDUCED_STATE, REDUCED_STORE
 
-    grid = SamplingGrid.from_config(config)
-    field_model = load_field_model(dynamics, grid.bins, ndem_store)
-    forces = ForcePredictor(force_model)
-    freeze_heap()
-    target = _Target(bed, trajectory, out, state, scenario, speed, depth)
-    return _tracked_reduce("reduce", target, config, field_model, forces)
+    with job_outputs(("--out", out, REDUCED_STORE), ("--state", state, REDUCED_STATE)):
+        grid = SamplingGrid.from_config(config)
+        field_model = load_field_model(dynamics, grid.bins, ndem_store)
+        forces = ForcePredictor(force_model)
+        freeze_heap()
+        target = _Target(bed, trajectory, out, state, scenario, speed, depth)
+        return _tracked_reduce("reduce", target, config, field_model, forces)
 
 
 def reduce_points_job(
@@ -87,7 +95,32 @@ def reduce_points_job(
     and NDEM store (replay's fields), its reduced store and state as
     ``results/reduced/{dynamics_model}/…`` (:func:`dozerlab.sweep.reduced_path`). Each point is
     its own MLflow run (tag ``rule`` reduce_training_points). Returns the points' metrics.
+    Every point's outputs are checked before the first run; a failure leaves none of them.
     """
+    from dozerlab.reduce.run import REDUCED_STATE, REDUCED_STORE
+
+    check_name(dynamics_model, "--dynamics-model")
+    outputs = [
+        (
+            f"--points {p.scenario}/{p.name} ({ext})",
+            P.reduced_path(results, dynamics_model, p, ext),
+            kind,
+        )
+        for p in points
+        for ext, kind in (("zarr", REDUCED_STORE), ("npz", REDUCED_STATE))
+    ]
+    with job_outputs(*outputs):
+        return _reduce_points(results, dynamics_model, points, config, dynamics, force_model)
+
+
+def _reduce_points(
+    results: str | Path,
+    dynamics_model: str,
+    points: list[P.SweepPoint],
+    config: dict[str, Any],
+    dynamics: str | Path,
+    force_model: str | Path,
+) -> list[dict[str, float]]:
     from dozerlab.fields.sampling import SamplingGrid
     from dozerlab.reduce.models import REPLAY, ForcePredictor, load_field_model
 
@@ -136,7 +169,8 @@ def _tracked_reduce(
     from dozerlab.reduce.run import reduce_run
 
     scenario, speed, depth = target.scenario, target.speed, target.depth
-    name = f"reduce {field_model.name} {scenario} v={speed} d={depth}"
+    point = P.point_name(speed, depth) if speed is not None and depth is not None else None
+    name = tracking.run_name("reduce", field_model.name, scenario, point)
     tags = {
         "scenario": scenario,
         "speed": speed,
@@ -192,6 +226,19 @@ def compare_job(
     meets, ``reduced.targets``), ``overall`` (per role and ``all``: means of the errors, worst
     overlaps, least speed-ups) and ``targets``. Logged as an MLflow run with the plots.
     """
+    check_name(dynamics_model, "--dynamics-model")
+    with job_outputs(("--out", out, COMPARISON_JSON), ("--plots", plots, COMPARISON_PLOTS)):
+        return _compare(dynamics_model, config, results, Path(out), Path(plots), animation)
+
+
+def _compare(
+    dynamics_model: str,
+    config: dict[str, Any],
+    results: str | Path,
+    out: Path,
+    plots: Path,
+    animation: bool,
+) -> dict[str, Any]:
     from dozerlab import tracking
     from dozerlab.fields.store import open_store
     from dozerlab.reduce import plots as rp
@@ -200,17 +247,16 @@ def compare_job(
     held_out = [p for p in P.sweep_points(config) if p.role != "train"]
     if not held_out:
         raise DozerlabError("the config's sweep has no held-out points to compare on")
-    plots = Path(plots)
     targets = config["reduced"]["targets"]
     entries: list[dict[str, Any]] = []
     with tracking.tracked_run(
-        f"compare_reduced {dynamics_model}",
+        tracking.run_name("compare", dynamics_model),
         rule="compare_reduced",
         tags={"model": dynamics_model},
         params={"reduced": config["reduced"]},
         experiment=config["mlflow"]["experiment"],
     ) as run:
-        with atomic_output(plots, FIGURE_DIR) as tmp_plots:
+        with atomic_output(plots, COMPARISON_PLOTS) as tmp_plots:
             tmp_plots.mkdir(parents=True)
             for point in held_out:
                 ndem_store = P.field_path(results, point)
@@ -260,7 +306,7 @@ def compare_job(
             "overall": {k: v for k, v in overall.items() if v},
         }
         with atomic_output(out, COMPARISON_JSON) as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True))
+            tmp.write_text(json.dumps(summary, indent=1, allow_nan=True))
         if run is not None:
             for role, agg in summary["overall"].items():
                 run.log_metrics({f"{role}.{k}": v for k, v in agg.items()})

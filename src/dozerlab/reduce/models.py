@@ -14,6 +14,7 @@ read the last ``learn.history`` rows of fields.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -46,6 +47,41 @@ class FieldModel(Protocol):
         m/s → velocity (m, Nx, Ny, Nz, 3), density (m, Nx, Ny, Nz).
         """
         ...
+
+    def check_run(self, run: RunFrame) -> None:
+        """Refuse (:class:`DozerlabError`, naming both sides) a run whose rows, bins, bin size
+        or labels this model's fields do not fit."""
+        ...
+
+
+@dataclass(frozen=True)
+class RunFrame:
+    """What a reduced run is, for the checks of its models: its source (``trajectory``, a path
+    for messages), sampled ``rows``, bin counts ``bins``, bin edge lengths ``bin_size`` (m), the
+    time between rows ``row_dt`` (s) and its labels ``point`` (scenario, speed m/s, depth m;
+    a label may be None where not given)."""
+
+    trajectory: str
+    rows: int
+    bins: tuple[int, int, int]
+    bin_size: tuple[float, float, float]
+    row_dt: float
+    point: dict[str, Any]
+
+
+def _check_frame(what: str, bins: tuple[int, ...], bin_size: Any, run: RunFrame) -> None:
+    """Refuse bins or bin sizes of ``what`` (a model or store, for messages) other than the run's
+    (the config's sampling section)."""
+    if tuple(bins) != tuple(run.bins):
+        raise DozerlabError(
+            f"{what} has {tuple(bins)} bins but the run samples {tuple(run.bins)} "
+            "(the config's sampling.bins); both must be the same"
+        )
+    if bin_size is not None and not np.allclose(bin_size, run.bin_size, rtol=1e-5):
+        raise DozerlabError(
+            f"{what} has bins of {[float(b) for b in bin_size]} m but the run's are "
+            f"{list(run.bin_size)} m (the config's sampling section); both must be the same"
+        )
 
 
 class PyfuncFieldModel:
@@ -84,6 +120,15 @@ class PyfuncFieldModel:
             )
         return v[0], rho[0]
 
+    def check_run(self, run: RunFrame) -> None:
+        _check_frame(
+            f"dynamics model {self.name}",
+            self.module.grid,
+            getattr(self.module, "bin_size", None),
+            run,
+        )
+        self.grid = run.bins
+
 
 class ReplayFieldModel:
     """The fields of a stored run, as if predicted: rows row+1 … row+m of the store.
@@ -95,6 +140,7 @@ class ReplayFieldModel:
         from dozerlab.learn.data import load_store
 
         data = load_store(store)
+        self.data = data
         self.name = REPLAY
         self.history = int(history)
         self.horizon = int(horizon)
@@ -108,6 +154,39 @@ class ReplayFieldModel:
         last = self.density.shape[0] - 1
         rows = np.minimum(np.arange(row + 1, row + 1 + self.horizon), last)
         return self.velocity[rows], self.density[rows]
+
+    def check_run(self, run: RunFrame) -> None:
+        """The replayed store must be the run's point: its labels, one row per sampled step of
+        the trajectory, the same bins and bin size and row interval."""
+        from dozerlab.learn.data import point_key
+
+        d = self.data
+        what = f"NDEM store {d.source}"
+        given = {k: v for k, v in run.point.items() if v is not None}
+        stored = {k: d.point[k] for k in given if k in d.point}
+        if given.keys() == {"scenario", "speed", "depth"} <= d.point.keys():
+            differ = point_key(given) != point_key(d.point)
+        else:
+            differ = any(
+                stored[k] != given[k] if k == "scenario" else not np.isclose(stored[k], given[k])
+                for k in stored
+            )
+        if differ:
+            raise DozerlabError(
+                f"{what} is the run of {d.point} but the reduced run is of {given} "
+                f"(trajectory {run.trajectory}, --scenario/--speed/--depth); replay the point's own store"
+            )
+        _check_frame(what, d.grid, d.bin_size, run)
+        if d.density.shape[0] != run.rows:
+            raise DozerlabError(
+                f"{what} has {d.density.shape[0]} rows but trajectory {run.trajectory} gives "
+                f"{run.rows} sampled rows (its steps // sampling.every); replay the point's own store"
+            )
+        if d.row_dt > 0 and not np.isclose(d.row_dt, run.row_dt, rtol=1e-6):
+            raise DozerlabError(
+                f"{what} has {d.row_dt} s between rows but the run {run.row_dt} s "
+                "(solver.dt × sampling.every); both must be the same"
+            )
 
 
 class ForcePredictor:
@@ -125,6 +204,11 @@ class ForcePredictor:
         # a model trained on a reduced loop's fields (rule train_loop_force) reads "<kind>-loop"
         kind = str(meta.get("kind") or path.name)
         self.name = f"{kind}-loop" if meta.get("loop_fields") else kind
+        self.bin_size = meta.get("bin_size")
+
+    def check_run(self, run: RunFrame) -> None:
+        """Refuse a run whose bins or bin size are not those the model was trained on."""
+        _check_frame(f"force model {self.name}", self.module.grid, self.bin_size, run)
 
     def predict(
         self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray

@@ -31,19 +31,19 @@ def _title(m: Mapping) -> str:
 
 
 def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
-    """Pushing force (x) and |F| of both runs over time; the NDEM warm-up shaded."""
+    """Pushing force (x) and |F| of both runs over time, given in N and drawn in kN; the NDEM
+    warm-up shaded."""
     fig = Figure(figsize=(9, 4.5), layout="constrained")
     ax = fig.add_subplot()
     t, warm = series["time"], int(series["warmup"])
     for key, style, label in (("force_ndem", "k-", "NDEM"), ("force_reduced", "C3-", "reduced")):
-        ax.plot(t, series[key][:, 0], style, lw=1.2, label=f"{label} force x")
-        ax.plot(
-            t, np.linalg.norm(series[key], axis=1), style, lw=0.6, alpha=0.5, label=f"{label} |F|"
-        )
+        force = series[key] / 1000.0
+        ax.plot(t, force[:, 0], style, lw=1.2, label=f"{label} force x")
+        ax.plot(t, np.linalg.norm(force, axis=1), style, lw=0.6, alpha=0.5, label=f"{label} |F|")
     if warm:
         ax.axvspan(t[0], t[warm - 1], color="0.85", label="NDEM warm-up")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("force on the blade (N)")
+    ax.set_ylabel("force on the blade (kN)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=3)
     ax.set_title(

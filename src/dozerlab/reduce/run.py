@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from dozerlab import __version__
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.fields.store import FieldStoreWriter
+from dozerlab.fields.store import FieldStoreWriter, field_store_kind
 from dozerlab.reduce.simulation import (
     PhaseTimes,
     ReducedSettings,
@@ -29,8 +29,13 @@ from dozerlab.reduce.simulation import (
     compile_kernels,
 )
 from dozerlab.runtime import DozerlabError
+from dozerlab.scenarios.bed import bed_file_kind
 
 log = logging.getLogger(__name__)
+#: What ``reduce`` and ``reduce-points`` write: the store and the final state of a reduced run,
+#: never replacing NDEM's (or a bed).
+REDUCED_STORE = field_store_kind("a dozerlab field store written by reduce", "reduce")
+REDUCED_STATE = bed_file_kind("a dozerlab final state (.npz) written by reduce", "reduce-state")
 
 
 def reduce_run(
@@ -59,6 +64,7 @@ def reduce_run(
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
     from dozerlab.fields.run import load_inputs, moved_bed, sample_row
+    from dozerlab.reduce.models import RunFrame
     from dozerlab.scenarios.blade import BladeGeometry, add_blade
     from dozerlab.scenarios.build import make_world
 
@@ -73,6 +79,20 @@ def reduce_run(
         raise DozerlabError(
             f"the trajectory has {rows} sampled rows, not more than the field model's history {hist}"
         )
+    frame = RunFrame(
+        str(trajectory_path),
+        rows,
+        grid.bins,
+        grid.bin_size,
+        dt * every,
+        {
+            "scenario": scenario or bed.scenario,
+            "speed": speed if speed is not None else round(traj.speed, 6),
+            "depth": depth,
+        },
+    )
+    field_model.check_run(frame)
+    force_model.check_run(frame)
     step_of = (np.arange(rows) + 1) * every  # solver steps done at each row
     blade_v = traj.velocity[step_of - 1].astype(np.float32)
     blade_v_ahead = np.vstack([blade_v, np.zeros((horizon, 3), np.float32)])
@@ -105,7 +125,13 @@ def reduce_run(
     active, sweeps = [], []
     start = wallclock.perf_counter()
     with FieldStoreWriter(
-        out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(config["sampling"]["chunk_steps"])
+        out,
+        x=x,
+        y=y,
+        z=z,
+        attrs=attrs,
+        kind=REDUCED_STORE,
+        chunk_steps=int(config["sampling"]["chunk_steps"]),
     ) as writer:
         # NDEM warm-up: the models' history, from the same bed along the same trajectory.
         world, _ = make_world(bed, config)
@@ -181,7 +207,7 @@ def reduce_run(
         state.v,
         np.zeros_like(state.v),
         {"time": float(traj.time[step_of[-1]]), "dynamics_model": field_model.name},
-    ).save(state_out)
+    ).save(state_out, REDUCED_STATE)
     metrics = {
         "wall_time_s": wall,
         "warmup_s": times.seconds["warmup"],

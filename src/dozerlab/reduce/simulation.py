@@ -95,6 +95,8 @@ class ReducedSettings:
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ReducedSettings:
+        """The settings of a validated config: of its ``reduced`` section, the fields
+        :data:`dozerlab.reduce.LOOP_FIELDS` only."""
         r = config["reduced"]
         p = r["projection"]
         return cls(

@@ -4,9 +4,17 @@ from __future__ import annotations
 
 import argparse
 
+from dozerlab.cliargs import add_command
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("report", help="write the HTML report of the sweep's results")
+    p = add_command(
+        sub,
+        "report",
+        "write the HTML report of the sweep's results",
+        "python -m dozerlab report --config config/quick.yaml --results results \\\n"
+        "      --out results/report/index.html",
+    )
     p.add_argument(
         "--config",
         default=None,

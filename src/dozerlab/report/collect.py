@@ -25,7 +25,8 @@ class PointSummary:
     ``steps`` counts solver steps, ``simulated`` is the simulated time in s, ``wall_time`` the
     wall-clock time in s of the simulation's stepping loop (the store's ``wall_time_s``
     attribute; None for stores written before it existed); ``mean_force`` / ``peak_force`` are
-    the mean and largest blade force magnitude |F| in N.
+    the mean and largest blade force magnitude |F| in N, ``peak_time`` when the largest was
+    reached, in s.
     """
 
     point: SweepPoint
@@ -36,6 +37,7 @@ class PointSummary:
     wall_time: float | None = None
     mean_force: float | None = None
     peak_force: float | None = None
+    peak_time: float | None = None
 
     @property
     def slowdown(self) -> float | None:
@@ -62,7 +64,9 @@ def summarize(results: str | Path, point: SweepPoint) -> PointSummary:
     if ds.attrs.get("wall_time_s") is not None:
         summary.wall_time = float(ds.attrs["wall_time_s"])
     if force.size:
-        summary.mean_force, summary.peak_force = float(force.mean()), float(force.max())
+        peak = int(force.argmax())
+        summary.mean_force, summary.peak_force = float(force.mean()), float(force[peak])
+        summary.peak_time = float(ds["time"].values[peak])
     return summary
 
 
@@ -94,7 +98,8 @@ def point_figures(results: str | Path, point: SweepPoint) -> list[str]:
             out.append(
                 html.figure(
                     png,
-                    f"{point.scenario} {point.name}: blade force (N) and torque about the tip (N·m)",
+                    f"{point.scenario} {point.name}: blade force (kN) and torque about the tip "
+                    "(kN·m)",
                 )
             )
     return out

@@ -1,9 +1,11 @@
-"""The report's shared building blocks: embedded images, tables with units, notes, the page.
+"""The report's shared building blocks: embedded images, animations beside the page, tables
+with units, verdicts, the summary, notes, the page.
 
-Every section builds its HTML from these, so the whole report looks alike and stays
-self-contained: images (PNG, GIF, SVG, JPEG files or matplotlib figures) are embedded as base64
-data URIs, and the page opens from disk with no network and no neighbouring files, so it can be
-mailed, attached to an MLflow run or served as is.
+Every section builds its HTML from these, so the whole report looks alike. Still images (PNG,
+SVG, JPEG files or matplotlib figures) are embedded as base64 data URIs; animations, which
+would make the page tens of megabytes, are copied into the :data:`ANIMATIONS` folder beside it
+and shown by relative path, so the page and that folder open from disk with no network and
+travel together (the workflow attaches both to its MLflow run).
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import base64
 import html
 import io
 import math
+import shutil
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import AbstractContextManager
@@ -19,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dozerlab.runtime import MARK, OutputKind, text_starts_with
+from dozerlab.runtime import ANIMATION, MARK, OutputKind, atomic_output, text_starts_with
 
 _MIME = {
     ".png": "image/png",
@@ -28,6 +31,9 @@ _MIME = {
     ".jpg": "image/jpeg",
     ".jpeg": "image/jpeg",
 }
+
+#: The folder beside the page that holds its animations (``results/report/animations``).
+ANIMATIONS = "animations"
 
 #: Resolution of the report's own figures: 1 inch of figure is 100 px of page, so a 12 in wide
 #: figure fills the page's width and a 12 pt label is 17 px high.
@@ -48,6 +54,9 @@ td.text, th.text { text-align: left; } td.text { white-space: nowrap; }
 figure { display: inline-block; margin: 0.6em 0.6em 0.6em 0; vertical-align: top; max-width: 100%; }
 figure img { max-width: 100%; height: auto; border: 1px solid #e2e2e2; }
 figcaption { font-size: 0.9em; color: #444; max-width: 60em; }
+.summary { border: 1px solid #cfd8e3; background: #f5f8fb; padding: 0.7em 1em 0.7em 2.2em;
+           margin: 0.8em 0 1em; } .summary li { margin: 0.25em 0; }
+.verdict { font-weight: 600; }
 .note { border-left: 4px solid #d08c00; background: #fff6e0; padding: 0.6em 1em; margin: 1em 0; }
 .missing { color: #a33; }
 .caption { color: #444; font-size: 0.95em; max-width: 60em; }
@@ -64,7 +73,7 @@ def esc(value: Any) -> str:
 def data_uri(source: bytes | str | Path | Any, mime: str = "image/png") -> str:
     """A base64 ``data:`` URI of an image file (PNG, GIF, SVG, JPEG: type from the suffix), of
     raw bytes of type ``mime``, or of a matplotlib figure (rendered as PNG at
-    :data:`FIGURE_DPI`)."""
+    :data:`FIGURE_DPI`). PNGs are embedded with a palette of 256 colours (:func:`palette_png`)."""
     if isinstance(source, bytes):
         data = source
     elif isinstance(source, (str, Path)):
@@ -78,7 +87,23 @@ def data_uri(source: bytes | str | Path | Any, mime: str = "image/png") -> str:
         if (plt := sys.modules.get("matplotlib.pyplot")) is not None:
             plt.close(source)  # a pyplot figure stays in pyplot's registry until closed
         data = buf.getvalue()
+    if mime == "image/png":
+        data = palette_png(data)
     return f"data:{mime};base64," + base64.b64encode(data).decode("ascii")
+
+
+def palette_png(data: bytes) -> bytes:
+    """A PNG re-encoded with a palette of 256 colours: a plot's few colours and a colour map's
+    steps survive, and the page's figures weigh a third to a quarter of their full-colour size
+    (the quick sweep's 59: 5.0 MB → 1.4 MB)."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(data)) as im:
+        # FASTOCTREE: as good as median cut on plots and several times faster
+        palette = im.convert("RGB").quantize(colors=256, method=Image.Quantize.FASTOCTREE)
+    buf = io.BytesIO()
+    palette.save(buf, format="PNG")
+    return buf.getvalue()
 
 
 def figure_style() -> AbstractContextManager[Any]:
@@ -105,6 +130,24 @@ def figure(source: bytes | str | Path | Any, caption: str) -> str:
     return (
         f'<figure><img src="{data_uri(source)}" alt="{esc(caption)}">'
         f"<figcaption>{esc(caption)}</figcaption></figure>"
+    )
+
+
+def animation(source: str | Path, page_dir: Path, name: str, caption: str) -> str:
+    """An animation (a GIF file ``source``) with a caption, shown from a copy beside the page:
+    ``page_dir/animations/name``, linked by the relative path ``animations/name``. The copy is
+    written through :func:`dozerlab.runtime.atomic_output`, so only an earlier animation of ours
+    is replaced."""
+    if Path(name).name != name or not name.endswith(".gif"):
+        raise ValueError(f"an animation's name is a .gif file name, got {name!r}")
+    dest = page_dir / ANIMATIONS / name
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(dest, ANIMATION) as tmp:
+        shutil.copyfile(source, tmp)
+    href = f"{ANIMATIONS}/{name}"
+    return (
+        f'<figure><a href="{esc(href)}"><img src="{esc(href)}" alt="{esc(caption)}" '
+        f'loading="lazy"></a><figcaption>{esc(caption)}</figcaption></figure>'
     )
 
 
@@ -172,6 +215,21 @@ def paragraph(text: str, cls: str = "") -> str:
     """A paragraph of plain text (escaped); ``cls`` a CSS class such as ``caption``."""
     attr = f' class="{cls}"' if cls else ""
     return f"<p{attr}>{esc(text)}</p>"
+
+
+def verdict(text: str) -> str:
+    """A section's verdict: the one sentence (plain text, escaped) that answers its question."""
+    return paragraph(text, "verdict")
+
+
+def summary(lines: Sequence[tuple[str, str, str]]) -> str:
+    """The page's summary: a list of ``(question, answer, section id)``, each answer (plain
+    text) after its question and a link to the section that shows the evidence."""
+    items = "".join(
+        f'<li><a href="#{esc(anchor)}"><b>{esc(question)}</b></a>: {esc(answer)}</li>'
+        for question, answer, anchor in lines
+    )
+    return f'<ul class="summary">{items}</ul>'
 
 
 def note(text: str) -> str:

@@ -2,7 +2,10 @@
 
 A bed file is an uncompressed-array ``.npz`` that ``np.load(path, allow_pickle=False)`` reads:
 the particle state arrays, the settle log arrays, and ``metadata``, a JSON string with the
-scalars and the material (density, friction, …) the bed was built with.
+scalars and the material (density, friction, …) the bed was built with. NDEM's and the reduced
+runs' final states are bed files too. Every array's CRC-32 is checked on loading
+(:func:`dozerlab.integrity.read_npz`), and a bed with a non-finite or non-positive particle
+value is neither written nor loaded.
 """
 
 from __future__ import annotations
@@ -15,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from dozerlab import __version__
-from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
+from dozerlab.integrity import DamagedFileError, read_npz, require_finite
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output
 
 SCENARIOS: tuple[str, ...] = ("hill", "step")
 
@@ -29,8 +33,32 @@ _ARRAYS = (
     "settle_kinetic_energy",
     "settle_contacts",
 )
+
+
+def bed_file_output(path: Path) -> str | None:
+    """The command that wrote the bed file at ``path`` (its metadata's ``dozerlab_output``;
+    for a file written before that entry, what its ``info`` shows: a reduced run's state names
+    its dynamics model, NDEM's holds the time only); None for anything but a bed file."""
+    with np.load(path, allow_pickle=False) as data:
+        if not {"metadata", *_ARRAYS} <= set(data.files):
+            return None
+        meta = json.loads(str(data["metadata"]))
+    if "dozerlab_output" in meta:
+        return str(meta["dozerlab_output"])
+    info = meta.get("info", {})
+    if "dynamics_model" in info:
+        return "reduce-state"
+    return "simulate-state" if set(info) == {"time"} else "bed"
+
+
+def bed_file_kind(what: str, name: str) -> OutputKind:
+    """The kind of a bed file that ``name`` writes (``bed``, a run's final state): recognised
+    by :func:`bed_file_output`, so a bed is never replaced by a state, nor the other way."""
+    return OutputKind(what, lambda path: path.is_file() and bed_file_output(path) == name, name)
+
+
 #: What ``dozerlab bed`` writes: a ``.npz`` with the bed's metadata and arrays.
-BED_FILE = OutputKind("a dozerlab bed file (.npz)", npz_with(("metadata", *_ARRAYS)))
+BED_FILE = bed_file_kind("a dozerlab bed file (.npz) written by bed", "bed")
 
 
 @dataclass
@@ -99,8 +127,23 @@ class Bed:
         d *= jitter / np.linalg.norm(d, axis=1, keepdims=True)
         return replace(self, positions=self.positions + d, info=self.info | {"jitter_m": jitter})
 
-    def save(self, path: str | Path) -> None:
-        """Write the bed to ``path`` (.npz) atomically."""
+    def check(self, where: str | Path) -> None:
+        """Refuse NaN/inf in any array and radii or masses that are not positive
+        (:class:`~dozerlab.integrity.DamagedFileError` naming ``where``, the file)."""
+        arrays = {name: getattr(self, name) for name in _ARRAYS}
+        require_finite(where, arrays, _ARRAYS)
+        for name in ("radii", "masses"):
+            bad = np.flatnonzero(arrays[name] <= 0)
+            if bad.size:
+                raise DamagedFileError(
+                    f"{where}: '{name}' holds {bad.size} value(s) <= 0, first of particle {bad[0]}"
+                )
+
+    def save(self, path: str | Path, kind: OutputKind = BED_FILE) -> None:
+        """Write the bed to ``path`` (.npz) atomically, as the output ``kind`` (a bed, a run's
+        final state), whose name its metadata records; a bed that fails :meth:`check` is
+        refused before anything is written."""
+        self.check(path)
         meta = {
             "scenario": self.scenario,
             "length": self.length,
@@ -109,9 +152,10 @@ class Bed:
             "seed": self.seed,
             "info": self.info,
             "dozerlab_version": __version__,
+            "dozerlab_output": kind.name,
         }
         arrays = {name: getattr(self, name) for name in _ARRAYS}
-        with atomic_output(path, BED_FILE) as tmp, open(tmp, "wb") as fh:
+        with atomic_output(path, kind) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, metadata=np.array(json.dumps(meta)), **arrays)
 
     @classmethod
@@ -120,18 +164,19 @@ class Bed:
         path = Path(path)
         if not path.is_file():
             raise DozerlabError(f"bed file not found: {path}")
+        data = read_npz(path, "a dozerlab bed file", ("metadata", *_ARRAYS))
         try:
-            with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["metadata"]))
-                arrays = {name: data[name] for name in _ARRAYS}
-        except (KeyError, ValueError, OSError) as exc:
+            meta = json.loads(str(data["metadata"]))
+            bed = cls(
+                scenario=meta["scenario"],
+                length=float(meta["length"]),
+                width=float(meta["width"]),
+                material=dict(meta["material"]),
+                seed=int(meta["seed"]),
+                info=dict(meta.get("info", {})),
+                **{name: data[name] for name in _ARRAYS},
+            )
+        except (KeyError, TypeError, ValueError) as exc:
             raise DozerlabError(f"{path} is not a dozerlab bed file: {exc}") from exc
-        return cls(
-            scenario=meta["scenario"],
-            length=float(meta["length"]),
-            width=float(meta["width"]),
-            material=dict(meta["material"]),
-            seed=int(meta["seed"]),
-            info=dict(meta.get("info", {})),
-            **arrays,
-        )
+        bed.check(path)
+        return bed

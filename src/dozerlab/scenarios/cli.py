@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from dozerlab.cliargs import add_config, add_point, add_threads, configure
+from dozerlab.cliargs import add_command, add_config, add_point, add_threads, configure
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bed", help="build and settle a scenario's particle bed")
+    p = add_command(
+        sub,
+        "bed",
+        "build and settle a scenario's particle bed",
+        "python -m dozerlab bed --scenario hill --config config/quick.yaml \\\n"
+        "      --out results/beds/hill.npz --plot results/beds/hill.png",
+    )
     p.add_argument("--scenario", required=True, help="hill or step")
     add_config(p)
     p.add_argument("--out", required=True, help="bed file to write (.npz)")
@@ -19,12 +25,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=_bed)
 
-    p = sub.add_parser("trajectory", help="plan a blade path over a bed")
+    p = add_command(
+        sub,
+        "trajectory",
+        "plan a blade path over a bed at a sweep point's speed and depth",
+        "python -m dozerlab trajectory --bed results/beds/hill.npz --speed 1.0 --depth 0.04 \\\n"
+        "      --config config/quick.yaml --out results/trajectories/hill/speed~1.0_depth~0.04.csv",
+    )
     p.add_argument("--bed", required=True, help="bed file written by 'dozerlab bed'")
     add_point(
         p,
-        "blade speed along the path in m/s (> 0)",
-        "cut depth in m (> 0, less than the bed's height)",
+        "blade speed along the path in m/s (0.01 to 20, the bounds of sweep.speeds)",
+        "cut depth in m (0.001 to 10, the bounds of sweep.depths, and less than the bed's height)",
         required=True,
     )
     add_config(p)

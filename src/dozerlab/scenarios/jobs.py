@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from dozerlab.runtime import FIGURE, check_output
+from dozerlab.runtime import job_outputs
 from dozerlab.scenarios.bed import BED_FILE, SCENARIOS, Bed
 from dozerlab.scenarios.build import build_bed
-from dozerlab.scenarios.plots import plot_bed, plot_trajectory
+from dozerlab.scenarios.plots import BED_PLOT, TRAJECTORY_PLOT, plot_bed, plot_trajectory
 from dozerlab.scenarios.trajectory import TRAJECTORY_FILE, Trajectory, plan_trajectory
 from dozerlab.tracking import job_run
 
@@ -27,14 +27,14 @@ def bed_job(
     per particle, wall time and steps as metrics). ``config`` is a validated config."""
     if scenario not in SCENARIOS:
         raise ValueError(f"--scenario must be one of {list(SCENARIOS)}, got {scenario!r}")
-    check_output(out, BED_FILE)  # before the settling, not after it
-    if plot:
-        check_output(plot, FIGURE)
     params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
     params["scenario"] = config["scenarios"][scenario]
-    with job_run(
-        config, f"bed {scenario}", rule="bed", tags={"scenario": scenario}, params=params
-    ) as run:
+    with (
+        job_outputs(("--out", out, BED_FILE), ("--plot", plot or None, BED_PLOT)),
+        job_run(
+            config, f"bed/{scenario}", rule="bed", tags={"scenario": scenario}, params=params
+        ) as run,
+    ):
         bed = build_bed(scenario, config, progress=progress)
         bed.save(out)
         if plot:
@@ -65,11 +65,9 @@ def trajectory_job(
 ) -> Trajectory:
     """Plan the blade path over the bed at ``bed_path`` for ``speed`` (m/s) and ``depth`` (m);
     save it at ``out`` (CSV) and its plot at ``plot``. ``config`` is a validated config."""
-    check_output(out, TRAJECTORY_FILE)
-    if plot:
-        check_output(plot, FIGURE)
-    traj = plan_trajectory(Bed.load(bed_path), speed, depth, config)
-    traj.save_csv(out)
-    if plot:
-        plot_trajectory(traj, plot)
+    with job_outputs(("--out", out, TRAJECTORY_FILE), ("--plot", plot or None, TRAJECTORY_PLOT)):
+        traj = plan_trajectory(Bed.load(bed_path), speed, depth, config)
+        traj.save_csv(out)
+        if plot:
+            plot_trajectory(traj, plot)
     return traj

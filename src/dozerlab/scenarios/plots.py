@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dozerlab.runtime import FIGURE, atomic_output, png_metadata
+from dozerlab.runtime import OutputKind, atomic_output, marked_png, png_metadata
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -18,9 +18,14 @@ if TYPE_CHECKING:
     from dozerlab.scenarios.trajectory import Trajectory
 
 
-def _save(fig, path: str | Path) -> None:
-    with atomic_output(path, FIGURE) as tmp:
-        fig.savefig(tmp, format="png", dpi=120, metadata=png_metadata())
+#: ``bed --plot`` and ``trajectory --plot``: each replaces only a figure of its own command.
+BED_PLOT = marked_png("a dozerlab bed figure (bed --plot)", "bed-plot")
+TRAJECTORY_PLOT = marked_png("a dozerlab trajectory figure (trajectory --plot)", "trajectory-plot")
+
+
+def _save(fig, path: str | Path, kind: OutputKind) -> None:
+    with atomic_output(path, kind) as tmp:
+        fig.savefig(tmp, format="png", dpi=120, metadata=png_metadata(kind.name))
 
 
 def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
@@ -68,7 +73,7 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
     ax.set_ylabel("velocity (m/s)")
     ax.legend(loc="upper right")
     fig.tight_layout()
-    _save(fig, path)
+    _save(fig, path, TRAJECTORY_PLOT)
 
 
 def bed_figure(bed: Bed) -> Figure:
@@ -151,4 +156,4 @@ def _colorbar(fig: Figure, ax: Axes, mappable: ScalarMappable, label: str) -> No
 
 def plot_bed(bed: Bed, path: str | Path) -> None:
     """Write :func:`bed_figure` of a bed as a PNG."""
-    _save(bed_figure(bed), path)
+    _save(bed_figure(bed), path, BED_PLOT)

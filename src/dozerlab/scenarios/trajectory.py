@@ -24,12 +24,15 @@ the velocity to prescribe in each step:
 
 from __future__ import annotations
 
+import hashlib
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from dozerlab.integrity import DamagedFileError
 from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, first_line_is
 from dozerlab.scenarios.bed import Bed
 from dozerlab.scenarios.blade import start_tip
@@ -37,8 +40,15 @@ from dozerlab.scenarios.filters import smooth_height
 from dozerlab.scenarios.heightfield import height_field
 
 CSV_COLUMNS = ("step", "time", "x", "y", "z", "vx", "vy", "vz")
+#: The start of a trajectory CSV's last line, followed by the SHA-256 (hex) of the bytes before it.
+_SHA_PREFIX = "# sha256 "
 #: What ``dozerlab trajectory`` writes: a CSV with exactly this header.
 TRAJECTORY_FILE = OutputKind("a dozerlab trajectory CSV", first_line_is(",".join(CSV_COLUMNS)))
+
+
+#: The most steps a trajectory may have: 10^6 rows of blade motion, a run of hours of NDEM;
+#: a path walked at a crawl would otherwise grow without bound (1e-9 m/s: 4e11 rows).
+MAX_STEPS = 1_000_000
 
 
 def _empty() -> np.ndarray:
@@ -76,34 +86,62 @@ class Trajectory:
         return len(self.velocity)
 
     def save_csv(self, path: str | Path) -> None:
-        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity), atomically."""
+        """Write ``step,time,x,y,z,vx,vy,vz`` rows (T+1; the last has zero velocity) and a last
+        line ``# sha256 HEX`` of the bytes before it, atomically; a trajectory that
+        :func:`check_table` refuses is refused unwritten."""
         vel = np.vstack([self.velocity, np.zeros((1, 3))])
         table = np.column_stack([np.arange(len(self.time)), self.time, self.position, vel])
+        check_table(path, table)
+        text = io.StringIO()
+        np.savetxt(
+            text,
+            table,
+            delimiter=",",
+            header=",".join(CSV_COLUMNS),
+            comments="",
+            fmt=["%d"] + ["%.17g"] * 7,
+        )
+        body = text.getvalue().encode()
         with atomic_output(path, TRAJECTORY_FILE) as tmp:
-            np.savetxt(
-                tmp,
-                table,
-                delimiter=",",
-                header=",".join(CSV_COLUMNS),
-                comments="",
-                fmt=["%d"] + ["%.17g"] * 7,
+            Path(tmp).write_bytes(
+                body + f"{_SHA_PREFIX}{hashlib.sha256(body).hexdigest()}\n".encode()
             )
 
     @classmethod
     def load_csv(cls, path: str | Path) -> Trajectory:
-        """Read a trajectory written by :meth:`save_csv` (positions and velocities bit-exact)."""
+        """Read a trajectory written by :meth:`save_csv` (positions and velocities bit-exact).
+
+        Refuses, naming the file, one whose bytes differ from its ``# sha256`` line or that has
+        none (written before it, or not by :meth:`save_csv`), and one :func:`check_table`
+        refuses."""
         path = Path(path)
         if not path.is_file():
             raise DozerlabError(f"trajectory file not found: {path}")
-        with open(path) as fh:
-            header = fh.readline().strip()
-        if header != ",".join(CSV_COLUMNS):
+        data = path.read_bytes()
+        header = data.split(b"\n", 1)[0].strip()
+        if header != ",".join(CSV_COLUMNS).encode():
             raise DozerlabError(
-                f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header!r}"
+                f"{path}: expected the header {','.join(CSV_COLUMNS)!r}, got {header[:80]!r}"
             )
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-        if len(table) < 2:
-            raise DozerlabError(f"{path}: a trajectory needs at least 2 rows, got {len(table)}")
+        body, sep, last = data.rstrip(b"\n").rpartition(b"\n")
+        if not sep or not last.startswith(_SHA_PREFIX.encode()):
+            raise DamagedFileError(
+                f"{path} has no '{_SHA_PREFIX.strip()}' line at its end (cut short, or written by a "
+                "dozerlab older than it), so it cannot be verified; re-run `dozerlab trajectory`"
+            )
+        if (
+            last[len(_SHA_PREFIX) :].decode("ascii", "replace")
+            != hashlib.sha256(body + b"\n").hexdigest()
+        ):
+            raise DamagedFileError(
+                f"{path} is damaged: its bytes differ from the SHA-256 on its last line; re-run "
+                "`dozerlab trajectory`, or copy it again"
+            )
+        try:
+            table = np.loadtxt(io.StringIO(body.decode()), delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:
+            raise DamagedFileError(f"{path} is not a table of numbers: {exc}") from exc
+        check_table(path, table)
         time, position, velocity = table[:, 1], table[:, 2:5], table[:-1, 5:8]
         return cls(
             time=np.ascontiguousarray(time),
@@ -115,6 +153,50 @@ class Trajectory:
             goal_height=float("nan"),
             dt=float(time[1] - time[0]),
         )
+
+
+def check_table(path: str | Path, table: np.ndarray) -> None:
+    """Refuse a trajectory table (rows ``step,time,x,y,z,vx,vy,vz``) that is not what
+    :meth:`Trajectory.save_csv` writes, naming ``path`` and the first row that differs.
+
+    Checked on saving, so that nothing else is written, and on loading after the file's SHA-256:
+    ``step`` counts 0, 1, …; ``time`` is ``step · dt`` with ``dt`` = ``time[1]``;
+    every position is the previous one plus ``dt`` times the previous row's velocity, bit for
+    bit (:func:`plan_trajectory` re-integrates them so, and ``%.17g`` reads back exactly); the
+    last row's velocity is zero; and every value is finite.
+    """
+    if table.ndim != 2 or table.shape[1] != len(CSV_COLUMNS):
+        raise DamagedFileError(
+            f"{path}: a trajectory has {len(CSV_COLUMNS)} columns, got shape {table.shape}"
+        )
+    if len(table) < 2:
+        raise DozerlabError(f"{path}: a trajectory needs at least 2 rows, got {len(table)}")
+    bad = np.argwhere(~np.isfinite(table))
+    if bad.size:
+        raise DamagedFileError(
+            f"{path}: row {bad[0][0]} holds NaN/inf ('{CSV_COLUMNS[bad[0][1]]}')"
+        )
+    n = len(table)
+    dt = table[1, 1] - table[0, 1]
+    position, velocity = table[:, 2:5], table[:-1, 5:8]
+    ties = {
+        "step": table[:, 0] == np.arange(n),
+        "time": table[:, 1] == np.arange(n) * dt,
+        "position": np.concatenate(
+            [[True], np.all(position[1:] == position[:-1] + dt * velocity, axis=1)]
+        ),
+    }
+    if not dt > 0:
+        raise DamagedFileError(f"{path}: the time step {dt} s is not positive (row 1)")
+    for what, ok in ties.items():
+        if not ok.all():
+            row = int(np.flatnonzero(~ok)[0])
+            raise DamagedFileError(
+                f"{path} is damaged or edited: row {row}'s {what} does not follow from the rows "
+                "before it as a planned trajectory's does; re-run `dozerlab trajectory`"
+            )
+    if np.any(table[-1, 5:8] != 0):
+        raise DamagedFileError(f"{path} is damaged or edited: the last row's velocity is not zero")
 
 
 def cut_path(x: np.ndarray, surface: np.ndarray, depth: float, goal_height: float) -> np.ndarray:
@@ -215,6 +297,13 @@ def plan_trajectory(bed: Bed, speed: float, depth: float, config: dict[str, Any]
     ease = _smoothstep((path[:, 0] - tip0[0]) / (int(tcfg["approach_steps"]) * speed * dt))
     path[:, 1] = tip0[2] + ease * (path[:, 1] - tip0[2])
 
+    length = float(np.hypot(*np.diff(path, axis=0).T).sum())
+    if length > MAX_STEPS * speed * dt:
+        raise ValueError(
+            f"the {length:.3g} m path at {speed} m/s takes {length / (speed * dt):.3g} steps of "
+            f"solver.dt {dt} s, more than a run holds (allowed: at most {MAX_STEPS:.0e} steps; "
+            "raise the speed or solver.dt)"
+        )
     xz = walk_path(path, speed * dt)
     if len(xz) < 2:
         raise ValueError(

@@ -2,6 +2,7 @@ import json
 
 import mlflow
 import numpy as np
+import pytest
 
 from dozerlab.cli import main
 from dozerlab.learn.data import load_store
@@ -15,6 +16,7 @@ CONFIG = json.dumps(
 )
 
 
+@pytest.mark.slow  # trains, validates, logs models
 def test_cli_trains_validates_and_logs_to_mlflow(tracking, store_files, capsys):
     train = [str(p) for p in store_files["train"]]
     out = tracking / "results" / "dynamics" / "ridge"

@@ -48,7 +48,11 @@ def _rollout_error(model, store, steps):
 
 
 @pytest.mark.parametrize(
-    ("kind", "tol", "gain", "epochs"), [("ridge", 0.01, 5, 1), ("unet", 0.08, 2, 12)]
+    ("kind", "tol", "gain", "epochs"),
+    [
+        ("ridge", 0.01, 5, 1),
+        pytest.param("unet", 0.08, 2, 12, marks=pytest.mark.slow),  # 12 epochs of a U-Net
+    ],
 )
 def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, epochs, rule_stores):
     train, held = rule_stores

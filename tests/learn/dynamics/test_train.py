@@ -1,5 +1,7 @@
 """Training of the evolution models: losses per epoch (per alpha for the ridge), the best kept."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ def test_persistence_has_no_loss_on_a_field_that_does_not_change():
     seen = []
     r = train_dynamics(
         "persistence",
-        [steady(40), steady(40)],
+        [steady(40), replace(steady(40), point={"scenario": "step", "speed": 1.0, "depth": 0.2})],
         CFG,
         on_epoch=lambda *a: seen.append(a),
         progress=False,

@@ -13,6 +13,7 @@ CFG = load_config({**SMALL_SWEEP, "learn": {"models": ["linear", "mlp"]}})
 
 def test_best_model_per_group_and_a_row_per_model_and_group(tmp_path):
     assert models.render(report_context(CFG, tmp_path)) is None
+    assert models.verdict(report_context(CFG, tmp_path)) is None
     (tmp_path / "validation").mkdir()
     validation_json(tmp_path, "linear")
     validation_json(tmp_path, "mlp")
@@ -47,6 +48,12 @@ def test_best_model_per_group_and_a_row_per_model_and_group(tmp_path):
     ]
     assert rows[2][2:5] == ["5.0", "2.5", "0.990"]  # %, kN, R²
     mlp = text.split('id="validation-mlp"')[1]
-    assert "mlp: fine; 40 epochs, best at epoch 31; training took 61 s." in mlp
+    assert "mlp: fine; 40 epochs, best at epoch 32; training took 61 s." in mlp  # 1-based
     assert '<td class="text">hill, 0.75 m/s, 0.1 m</td>' in mlp
+    # the verdict: the lowest mean over the groups (mlp 8.75 %, linear 12.5 %), per group
+    assert models.verdict(report_context(CFG, tmp_path)) == (
+        "mlp predicts the draft force best: force_x relative RMSE 5.0 % on the interpolation and "
+        "12.5 % on the extrapolation points; next best linear, 12.5 % and 12.5 %; the thesis CNN "
+        "reached 10 % on its training data."
+    )
     assert "closed-form fit (no epochs)" in text.split('id="validation-mlp"')[0]

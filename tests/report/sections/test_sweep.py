@@ -31,3 +31,14 @@ def test_one_row_per_point_and_the_map_with_its_colour_scale(tmp_path):
     panel, colorbar = fig.axes
     assert panel.get_title() == "hill" and colorbar.get_ylabel() == "mean |F| (kN)"
     assert [t.get_text() for t in panel.texts] == ["1.50 kN"]  # only the built point is labelled
+    # the legend's markers are drawn as the points: filled from the colour scale, edged by
+    # role, at their size; with a point not built, its hollow grey marker is explained too
+    legend = fig.legends[0]
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == [*sweep.LABELS.values(), "not simulated yet"]
+    drawn = panel.collections[2]  # the built point
+    handle = legend.legend_handles[list(sweep.LABELS).index(points[2].role)]
+    assert handle.get_markeredgecolor() == sweep.EDGES[points[2].role][0]
+    assert handle.get_markerfacecolor() != "0.85"  # not the grey of a point not built
+    assert round(handle.get_markersize() ** 2) == sweep.MARKER_AREA == drawn.get_sizes()[0]
+    assert handle.get_markeredgewidth() == drawn.get_linewidths()[0]

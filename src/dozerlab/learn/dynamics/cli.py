@@ -14,6 +14,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         sub,
         "train-dynamics",
         "train one field-evolution model on field stores",
+        "python -m dozerlab train-dynamics --model ridge --config config/quick.yaml \\\n"
+        "      --train results/fields/hill/speed~1.0_depth~0.04.zarr \\\n"
+        "              results/fields/hill/speed~1.5_depth~0.04.zarr \\\n"
+        "      --out results/dynamics/ridge",
         models=MODELS,
         run="dozerlab.learn.dynamics.jobs:train_dynamics_job",
         results="dynamics",
@@ -23,7 +27,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_validation(
         sub,
         "validate-dynamics",
-        "one-step and rollout errors of an evolution model on held-out points",
+        "measure an evolution model's one-step and rollout errors on held-out points",
+        "python -m dozerlab validate-dynamics --model results/dynamics/ridge \\\n"
+        "      --config config/quick.yaml \\\n"
+        "      --interpolation results/fields/hill/speed~1.25_depth~0.06.zarr \\\n"
+        "      --extrapolation results/fields/hill/speed~0.75_depth~0.08.zarr \\\n"
+        "      --out results/dynamics/ridge.json",
         run="dozerlab.learn.dynamics.jobs:validate_dynamics_job",
         models="dynamics",
         results="dynamics",

@@ -11,18 +11,24 @@ from dozerlab.learn.data import StoreData, check_grid, load_store
 from dozerlab.learn.dynamics import plots, pyfunc
 from dozerlab.learn.dynamics.metrics import combine, evaluate_store, public
 from dozerlab.learn.dynamics.models import DynamicsModel
-from dozerlab.learn.dynamics.pyfunc import FORMAT
+from dozerlab.learn.dynamics.pyfunc import FORMAT, MODEL_DIR
 from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.learn.dynamics.windows import frame_of
 from dozerlab.learn.jobs import Family, held_out_params, record_validation, train_job
 from dozerlab.learn.train import TrainResult
 from dozerlab.learn.validate import GROUPS, check_no_leak
-from dozerlab.runtime import OutputKind, json_with
-from dozerlab.tracking import job_run
+from dozerlab.runtime import OutputKind, atomic_output, job_outputs, json_with, marked_folder
+from dozerlab.tracking import job_run, run_name
 
 #: What ``validate-dynamics`` writes: held-out one-step and rollout metrics.
 VALIDATION_JSON = OutputKind(
-    "a dozerlab evolution-model validation JSON", json_with(("model", "overall", "groups"))
+    "a dozerlab evolution-model validation JSON",
+    json_with(("model", "overall", "groups", "horizon")),
+    "validate-dynamics",
+)
+#: ``validate-dynamics``'s plots: a folder built whole (the JSON's plot paths point into it).
+DYNAMICS_PLOTS = marked_folder(
+    "a dozerlab folder of evolution-model validation plots", "validate-dynamics-plots"
 )
 
 
@@ -34,7 +40,14 @@ def _recorded(config: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
 
 #: The field-evolution models: ``dozerlab train-dynamics``.
 DYNAMICS = Family(
-    "dynamics ", "train_dynamics", "val_rollout_loss", train_dynamics, FORMAT, _recorded
+    "dynamics ",
+    "train_dynamics",
+    "val_rollout_loss",
+    train_dynamics,
+    FORMAT,
+    _recorded,
+    output=MODEL_DIR,
+    family="evolution",
 )
 
 
@@ -56,10 +69,12 @@ def validate_dynamics(
     starts: int,
     plots_dir: str | Path | None = None,
     json_dir: str | Path | None = None,
+    plots_at: str | Path | None = None,
 ) -> dict[str, Any]:
     """Metrics of ``model`` on held-out stores grouped by ``GROUPS`` (``steps``-row rollouts
     from ``starts`` true states each), per point, per group and overall, with plots into
-    ``plots_dir`` (paths relative to ``json_dir``). Refuses training points, other grids and
+    ``plots_dir`` (their paths those in ``plots_at``, where the folder will be moved, default
+    ``plots_dir``, relative to ``json_dir``). Refuses training points, other grids and
     other sampling frames."""
     stores = [s for g in GROUPS for s in held_out.get(g, [])]
     if not stores:
@@ -88,7 +103,12 @@ def validate_dynamics(
     result["summary"] = summary_line(result)
     if plots_dir is not None:
         result["plots"] = _plots(
-            model.kind, groups, result, Path(plots_dir), Path(json_dir or plots_dir)
+            model.kind,
+            groups,
+            result,
+            Path(plots_dir),
+            Path(json_dir or plots_dir),
+            Path(plots_at or plots_dir),
         )
     return result
 
@@ -112,8 +132,9 @@ def _plots(
     result: dict[str, Any],
     pdir: Path,
     base: Path,
+    shown: Path,
 ) -> dict[str, Any]:
-    rel = lambda p: os.path.relpath(p, base)  # noqa: E731
+    rel = lambda p: os.path.relpath(shown / Path(p).name, base)  # noqa: E731
     series = {f"{g}: all": result["groups"][g]["overall"]["rollout"] for g in groups}
     series.update({f"{g}: {p['name']}": p["rollout"] for g, pts in groups.items() for p in pts})
     out: dict[str, Any] = {
@@ -146,11 +167,23 @@ def validate_dynamics_job(
 ) -> dict[str, Any]:
     """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default:
     ``plots/{name}`` beside it, as :func:`dozerlab.sweep.dynamics_plots_path`; the folder named
-    after the JSON is the model's), and an MLflow validate_dynamics run."""
-
-    model, meta = pyfunc.load(model_dir)
+    after the JSON is the model's, built whole: :data:`DYNAMICS_PLOTS`), and an MLflow
+    validate_dynamics run. Both outputs are checked before any work; a failure leaves neither."""
     out = Path(out)
     pdir = Path(plots_dir) if plots_dir else out.parent / "plots" / out.stem
+    with job_outputs(("--out", out, VALIDATION_JSON), ("--plots", pdir, DYNAMICS_PLOTS)):
+        return _validate_dynamics(model_dir, interpolation, extrapolation, out, config, pdir)
+
+
+def _validate_dynamics(
+    model_dir: str | Path,
+    interpolation: list[str | Path],
+    extrapolation: list[str | Path],
+    out: Path,
+    config: dict[str, Any],
+    pdir: Path,
+) -> dict[str, Any]:
+    model, meta = pyfunc.load(model_dir)
     held = {
         "interpolation": [load_store(p) for p in interpolation],
         "extrapolation": [load_store(p) for p in extrapolation],
@@ -164,14 +197,23 @@ def validate_dynamics_job(
     tags = {"model": model.kind}
     with job_run(
         config,
-        f"validate dynamics {model.kind}",
+        run_name("validate", DYNAMICS.family, model.kind),
         rule="validate_dynamics",
         tags=tags,
         params=params,
     ) as run:
-        result = validate_dynamics(
-            model, meta, held, dyn["rollout_steps"], dyn["rollout_starts"], pdir, out.parent
-        )
+        with atomic_output(pdir, DYNAMICS_PLOTS) as tmp:
+            tmp.mkdir()
+            result = validate_dynamics(
+                model,
+                meta,
+                held,
+                dyn["rollout_steps"],
+                dyn["rollout_starts"],
+                tmp,
+                out.parent,
+                plots_at=pdir,
+            )
         record_validation(run, result, out, VALIDATION_JSON, flat_metrics(result), pdir)
     return result
 

@@ -26,6 +26,7 @@ from dozerlab.learn.dynamics.models import DynamicsModel
 from dozerlab.learn.pyfunc import (
     INPUT_NAMES,
     PyfuncFormat,
+    model_dir_kind,
     python_model_class,
     require_inputs,
 )
@@ -117,6 +118,10 @@ def _check(meta: dict[str, Any], path: str | Path) -> None:
         raise DozerlabError(f"{path} is a force model, not an evolution model (no horizon)")
 
 
+#: What ``dozerlab train-dynamics`` writes; only an earlier evolution model may be replaced.
+MODEL_DIR = model_dir_kind(
+    "a dozerlab evolution model directory (written by train-dynamics)", "train-dynamics", True
+)
 #: The evolution models' pyfunc directories.
 FORMAT = PyfuncFormat(
     "dozerlab evolution model",

@@ -7,7 +7,11 @@ A section module defines
   50 models: leave gaps for new sections);
 - ``render(ctx: Context) -> str | None``: its HTML fragment, built with the helpers of
   :mod:`dozerlab.report.html` (embedded images, tables with units, notes), or None when the
-  results hold nothing for it yet, so the report leaves the section out.
+  results hold nothing for it yet, so the report leaves the section out;
+- ``verdict(ctx: Context) -> str | None``: the one sentence, with its numbers, that answers the
+  section's question; the build puts it at the top of the section;
+- optionally ``QUESTION``: the question the section answers as the page's summary lists it
+  (str); a section with one has its verdict in the summary at the top of the page.
 
 To add a section, add a module to this package: the build finds it, no list to edit.
 """
@@ -44,12 +48,14 @@ class Comparison:
 
 @dataclass(frozen=True)
 class Context:
-    """What every section reads: the validated config, the results directory (``results/``)
-    and the config's sweep points (training grid first, then the held-out points)."""
+    """What every section reads: the validated config, the results directory (``results/``),
+    the config's sweep points (training grid first, then the held-out points) and the folder
+    the page is written to (its animations go beside it)."""
 
     cfg: Mapping[str, Any]
     results: Path
     points: tuple[SweepPoint, ...]
+    page_dir: Path
     #: Processes that draw the per-point figures (the report is the sweep's last job).
     processes: int = 1
 
@@ -59,11 +65,24 @@ def modules() -> list[ModuleType]:
     found = []
     for info in pkgutil.iter_modules(__path__):
         module = importlib.import_module(f"{__name__}.{info.name}")
-        for attr in ("TITLE", "ORDER", "render"):
+        for attr in ("TITLE", "ORDER", "render", "verdict"):
             if not hasattr(module, attr):
                 raise TypeError(f"report section {module.__name__} defines no {attr}")
         found.append(module)
     return sorted(found, key=lambda m: (m.ORDER, m.__name__))
+
+
+def documents(
+    ctx: Context, models: Iterable[str], path_of: Callable[[Path, str], Path]
+) -> dict[str, tuple[Path, dict[str, Any]]]:
+    """The JSON document of each model the results hold one of (``path_of(results, model)``),
+    with its path, in the order of ``models``."""
+    found = {}
+    for model in models:
+        path = path_of(ctx.results, model)
+        if path.is_file():
+            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
+    return found
 
 
 def model_comparison(
@@ -78,11 +97,7 @@ def model_comparison(
     (``path_of(results, model)``; None when there is none yet): ``compare(documents)``'s lead
     paragraph, chart (an HTML figure), table and caption, then per model a collapsed block of
     ``detail(model, path, document)`` with the id ``{anchor}-{model}``."""
-    found = {}
-    for model in models:
-        path = path_of(ctx.results, model)
-        if path.is_file():
-            found[model] = (path, json.loads(path.read_text(encoding="utf-8")))
+    found = documents(ctx, models, path_of)
     if not found:
         return None
     c = compare({m: doc for m, (_, doc) in found.items()})

@@ -11,6 +11,21 @@ TITLE = "Beds"
 ORDER = 30
 
 
+def verdict(ctx: Context) -> str | None:
+    """How many beds were settled, of how many particles."""
+    from dozerlab.scenarios.bed import Bed
+
+    counts = {}
+    for scenario in dict.fromkeys(p.scenario for p in ctx.points):
+        path = bed_path(ctx.results, scenario)
+        if path.is_file():
+            counts[scenario] = Bed.load(path).count
+    if not counts:
+        return None
+    beds = ", ".join(f"{s} ({n} particles)" for s, n in counts.items())
+    return f"{len(counts)} settled bed{'s' if len(counts) != 1 else ''}, one per scenario: {beds}."
+
+
 def render(ctx: Context) -> str | None:
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.plots import bed_figure

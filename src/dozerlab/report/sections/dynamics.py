@@ -11,12 +11,20 @@ from typing import Any
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.sections import GROUPS, Comparison, Context, group_rows, model_comparison
+from dozerlab.report.sections import (
+    GROUPS,
+    Comparison,
+    Context,
+    documents,
+    group_rows,
+    model_comparison,
+)
 from dozerlab.report.sections.models import _point
 from dozerlab.sweep import dynamics_validation_path
 
 TITLE = "Field-evolution models on held-out points"
 ORDER = 60
+QUESTION = "Best field-evolution model"
 
 #: Issue 15's targets: the best model's one-step and 50-step velocity errors at most this
 #: fraction of persistence's, and mass within this fraction of the truth over 100 steps.
@@ -68,6 +76,37 @@ def _cells(o: dict[str, Any]) -> list[Any]:
 def render(ctx: Context) -> str | None:
     models = ctx.cfg["dynamics"]["models"]
     return model_comparison(ctx, models, dynamics_validation_path, _compare, _model, "dynamics")
+
+
+def verdict(ctx: Context) -> str | None:
+    """The learned model whose worse held-out group is closest to the targets: its velocity
+    error against persistence's after one and 50 steps, its mass error and the targets."""
+    found = documents(ctx, ctx.cfg["dynamics"]["models"], dynamics_validation_path)
+    docs = {m: doc for m, (_, doc) in found.items()}
+    if "persistence" not in docs:
+        return None
+    scored: dict[str, tuple[float, float, float]] = {}
+    for m, doc in docs.items():
+        groups = [g for g in GROUPS if g in doc["groups"] and g in docs["persistence"]["groups"]]
+        if m == "persistence" or not groups:
+            continue
+        ratios = [_ratios(docs, m, g) for g in groups]
+        scored[m] = (
+            max(float(r[0] or 0.0) for r in ratios),
+            max(float(r[1] or 0.0) for r in ratios),
+            max(doc["groups"][g]["overall"]["mass"]["max_abs_error"] for g in groups),
+        )
+    if not scored:
+        return None
+    best = min(scored, key=lambda m: max(scored[m][:2]))
+    one, fifty, mass = scored[best]
+    ok = max(one, fifty) <= RATIO_TARGET and mass <= MASS_TARGET
+    return (
+        f"{best} evolves the fields best: its velocity error is {one:.2f}× persistence's after "
+        f"one step and {fifty:.2f}× after 50 steps, mass within {html.percent(mass)} (the worse "
+        f"held-out group); it {'meets' if ok else 'misses'} the targets ≤ {RATIO_TARGET}× and "
+        f"±{html.percent(MASS_TARGET, 0)}."
+    )
 
 
 def _compare(docs: dict[str, dict[str, Any]]) -> Comparison:

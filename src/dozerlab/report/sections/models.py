@@ -11,11 +11,19 @@ from typing import Any
 import numpy as np
 
 from dozerlab.report import html
-from dozerlab.report.sections import GROUPS, Comparison, Context, group_rows, model_comparison
+from dozerlab.report.sections import (
+    GROUPS,
+    Comparison,
+    Context,
+    documents,
+    group_rows,
+    model_comparison,
+)
 from dozerlab.sweep import fmt_number, validation_path
 
 TITLE = "Models on held-out points"
 ORDER = 50
+QUESTION = "Best force model on held-out points"
 
 #: The compared components (the blade's draft force, lift and pitch torque) and their units.
 COMPARED = {"force_x": "kN", "force_z": "kN", "torque_y": "kN·m"}
@@ -53,6 +61,37 @@ def _cells(m: dict[str, dict[str, float]]) -> list[Any]:
 def render(ctx: Context) -> str | None:
     models = ctx.cfg["learn"]["models"]
     return model_comparison(ctx, models, validation_path, _compare, _model, "validation")
+
+
+def verdict(ctx: Context) -> str | None:
+    """The model with the lowest draft-force (force_x) relative RMSE over the held-out groups
+    (their mean), its error per group and the runner-up's, against the thesis CNN's."""
+    docs = {
+        m: doc
+        for m, (_, doc) in documents(ctx, ctx.cfg["learn"]["models"], validation_path).items()
+    }
+    scores = {}
+    for m, doc in docs.items():
+        errors = {
+            g: doc["groups"][g]["overall"]["force_x"]["rel_rmse"]
+            for g in GROUPS
+            if g in doc["groups"]
+        }
+        if errors and all(math.isfinite(v) for v in errors.values()):
+            scores[m] = errors
+    if not scores:
+        return None
+    ranked = sorted(scores, key=lambda m: float(np.mean(list(scores[m].values()))))
+    best = scores[ranked[0]]
+    text = f"{ranked[0]} predicts the draft force best: force_x relative RMSE " + " and ".join(
+        f"{html.percent(v)} on the {g}" for g, v in best.items()
+    )
+    text += " points"
+    if len(ranked) > 1:
+        text += f"; next best {ranked[1]}, " + " and ".join(
+            html.percent(v) for v in scores[ranked[1]].values()
+        )
+    return text + f"; the thesis CNN reached {html.percent(THESIS_ERROR, 0)} on its training data."
 
 
 def _compare(results: dict[str, dict[str, Any]]) -> Comparison:
@@ -94,7 +133,8 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         facts.append(
             "closed-form fit (no epochs)"
             if train["epochs"] == 1
-            else f"{train['epochs']} epochs, best at epoch {train.get('best_epoch')}"
+            # best_epoch counts from 0; epochs are numbered from 1, as the loss plot shows them
+            else f"{train['epochs']} epochs, best at epoch {train['best_epoch'] + 1}"
         )
     if train.get("seconds") is not None:
         facts.append(f"training took {train['seconds']:.0f} s")

@@ -14,9 +14,13 @@ from dozerlab.sweep import fmt_number
 
 TITLE = "Sweep"
 ORDER = 20
+QUESTION = "What the sweep covered"
 
-#: Marker of each role on the sweep map.
+#: Marker of each role on the sweep map, its edge colour and width (pt), and the markers' area
+#: (pt²).
 MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s"}
+EDGES = {"train": ("k", 0.8), "interpolation": ("crimson", 2.2), "extrapolation": ("crimson", 2.2)}
+MARKER_AREA = 170
 LABELS = {
     "train": "training",
     "interpolation": "held out, interpolation",
@@ -25,6 +29,7 @@ LABELS = {
 
 
 def _kn(newton: float | None) -> float | None:
+    """A force in kN, the report's unit of force, from N."""
     return None if newton is None else newton / 1000.0
 
 
@@ -40,6 +45,7 @@ COLUMNS = [
     html.Column("wall ÷ simulated time", "", lambda v: "–" if v is None else f"{v:.0f} ×"),
     html.Column("mean |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
     html.Column("peak |F|", "kN", lambda v: "–" if v is None else f"{v:.2f}"),
+    html.Column("peak at", "s", lambda v: "–" if v is None else f"{v:.2f}"),
 ]
 
 
@@ -57,7 +63,47 @@ def _row(s: PointSummary) -> list[Any]:
         s.slowdown,
         _kn(s.mean_force),
         _kn(s.peak_force),
+        s.peak_time,
     ]
+
+
+def verdict(ctx: Context) -> str | None:
+    """The runs simulated out of the sweep's, their range of mean |F| (kN) and stepping time."""
+    summaries = [summarize(ctx.results, p) for p in ctx.points]
+    built = [s for s in summaries if s.built]
+    if not built:
+        return None
+    held = sum(s.point.role != "train" for s in built)
+    speeds = [p.speed for p in ctx.points]
+    depths = [p.depth for p in ctx.points]
+    text = (
+        f"{len(built)} of {len(summaries)} NDEM runs simulated "
+        f"({len(built) - held} training, {held} held out) on "
+        f"{', '.join(dict.fromkeys(p.scenario for p in ctx.points))}, blade speeds "
+        f"{_span(min(speeds), max(speeds), fmt_number)} m/s, cut depths "
+        f"{_span(min(depths), max(depths), fmt_number)} m"
+    )
+    forced = [s for s in built if s.mean_force is not None]
+    if forced:
+        lo = min(forced, key=lambda s: s.mean_force or 0.0)
+        hi = max(forced, key=lambda s: s.mean_force or 0.0)
+        text += f"; mean |F| {_kn(lo.mean_force):.2f} kN ({_where(lo)})"
+        if hi.mean_force != lo.mean_force:
+            text += f" to {_kn(hi.mean_force):.2f} kN ({_where(hi)})"
+    timed = [s.wall_time for s in built if s.wall_time is not None]
+    if timed:
+        text += f"; stepping took {_span(min(timed), max(timed), lambda v: f'{v:.0f}')} s a run"
+    return text + "."
+
+
+def _span(lo: float, hi: float, number: Any) -> str:
+    """``lo–hi`` as ``number`` writes them, one number when they read the same."""
+    a, b = number(lo), number(hi)
+    return a if a == b else f"{a}–{b}"
+
+
+def _where(s: PointSummary) -> str:
+    return f"{s.point.scenario} {fmt_number(s.point.speed)} m/s, {fmt_number(s.point.depth)} m"
 
 
 def render(ctx: Context) -> str | None:
@@ -68,15 +114,16 @@ def render(ctx: Context) -> str | None:
         html.figure(
             sweep_map(summaries),
             "Mean blade force magnitude |F| over each run, by blade speed and cut depth; the "
-            "held-out points (diamonds, squares) are never seen in training. Hollow grey: not "
-            "simulated yet.",
+            "held-out points (diamonds, squares, red edges) are never seen in training. Hollow "
+            "grey: not simulated yet.",
         ),
         html.table(COLUMNS, [_row(s) for s in summaries]),
         html.paragraph(
             "Stepping wall time: the simulation's stepping loop (solver, field sampling, store "
             "writes) on one job's threads, without loading the bed or Snakemake's overhead; – for "
             "stores written before it was recorded. Forces are the particles' contact forces on "
-            "the blade.",
+            "the blade; peak at: when in the run |F| was largest (in a run's last steps it can "
+            "be the pile pressed against the bed's far wall; Runs counts such runs).",
             "caption",
         ),
     ]
@@ -86,6 +133,7 @@ def render(ctx: Context) -> str | None:
 def sweep_map(summaries: list[PointSummary]) -> Any:
     """A figure per scenario of the points on the speed (m/s) × depth (m) plane, coloured by
     mean |F| (kN, one colour scale), marked by role and labelled with their force."""
+    from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
@@ -106,7 +154,7 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                 p = s.point
                 if p.scenario != scenario:
                     continue
-                style: dict[str, Any] = {"marker": MARKERS[p.role], "s": 170, "zorder": 3}
+                style: dict[str, Any] = {"marker": MARKERS[p.role], "s": MARKER_AREA, "zorder": 3}
                 if s.mean_force is None:
                     ax.scatter(p.speed, p.depth, facecolors="none", edgecolors="0.6", **style)
                     continue
@@ -116,8 +164,8 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                     c=[s.mean_force / 1000],
                     cmap="viridis",
                     norm=norm,
-                    edgecolors="k" if p.role == "train" else "crimson",
-                    linewidths=0.8 if p.role == "train" else 2.2,
+                    edgecolors=EDGES[p.role][0],
+                    linewidths=EDGES[p.role][1],
                     **style,
                 )
                 ax.annotate(
@@ -139,15 +187,29 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
         fig.colorbar(
             ScalarMappable(norm=norm, cmap="viridis"), ax=list(axes), label="mean |F| (kN)"
         )
+        # the legend's markers drawn as the points are: filled from the colour scale (its
+        # middle), edged by role, at the points' size (scatter's s is the area in pt²)
+        size, fill = float(np.sqrt(MARKER_AREA)), colormaps["viridis"](0.5)
         handles = [
             Line2D(
-                [], [], marker=MARKERS[r], ls="", ms=10, mfc="0.85", mec=c, mew=w, label=LABELS[r]
+                [], [], marker=MARKERS[r], ls="", ms=size, mfc=fill, mec=c, mew=w, label=LABELS[r]
             )
-            for r, c, w in (
-                ("train", "k", 0.8),
-                ("interpolation", "crimson", 2.2),
-                ("extrapolation", "crimson", 2.2),
-            )
+            for r, (c, w) in EDGES.items()
         ]
-        fig.legend(handles=handles, loc="outside lower center", ncols=3, frameon=False)
+        if any(s.mean_force is None for s in summaries):
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    marker="o",
+                    ls="",
+                    ms=size,
+                    mfc="none",
+                    mec="0.6",
+                    label="not simulated yet",
+                )
+            )
+        fig.legend(
+            handles=handles, loc="outside lower center", ncols=min(len(handles), 3), frameon=False
+        )
     return fig

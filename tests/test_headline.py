@@ -1,0 +1,55 @@
+"""A sweep's headline figures, read from its result files: the parent run's metrics and the
+workflow's closing summary."""
+
+import json
+
+from dozerlab import headline
+from dozerlab import sweep as P
+from dozerlab.config import load_config
+
+
+def write(path, doc):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc))
+
+
+def test_metrics_and_summary_from_the_results(tmp_path):
+    cfg = load_config(
+        {
+            "learn": {"models": ["linear", "cnn"]},
+            "dynamics": {"models": ["persistence", "ridge"]},
+            "reduced": {"dynamics_models": ["replay", "ridge"]},
+        }
+    )
+    write(P.validation_path(tmp_path, "linear"), {"overall": {"force_x": {"rel_rmse": 0.3}}})
+    write(P.validation_path(tmp_path, "cnn"), {"overall": {"force_x": {"rel_rmse": 0.2}}})
+    for model, one in (("persistence", 0.2), ("ridge", 0.1)):
+        rollout = {"10": {"velocity": 0.5}, "100": {"velocity": 0.9}}
+        doc = {"overall": {"one_step": {"velocity": one}, "rollout_at": rollout}}
+        write(P.dynamics_validation_path(tmp_path, model), doc)
+    points = [
+        {"targets_met": {"height_accuracy": True, "loop_speedup": False, "job_speedup": None}},
+        {"targets_met": {"height_accuracy": True, "loop_speedup": True, "job_speedup": None}},
+    ]
+    overall = {"height_accuracy": 0.85, "force_x_rel_rmse": 0.2, "loop_speedup": 40.0}
+    write(
+        P.reduced_comparison_path(tmp_path, "ridge"),
+        {"overall": {"all": overall}, "points": points},
+    )
+
+    got = headline.metrics(tmp_path, cfg)
+    assert got["force_x_rel_rmse/cnn"] == got["force_x_rel_rmse/best"] == 0.2
+    assert got["evolution_velocity_error/ridge_rollout_100"] == 0.9
+    assert got["reduced_ridge/height_accuracy"] == 0.85
+    assert (got["reduced_ridge/targets_met"], got["reduced_ridge/targets_missed"]) == (3.0, 1.0)
+    assert not any(k.startswith("reduced_replay") for k in got)  # not built: left out
+
+    lines = headline.summary_lines(tmp_path, cfg, 125.0)
+    assert lines[0] == "dozerlab: finished in 2 min 5 s"
+    assert "best on held-out points: cnn, force x rel. RMSE 20 % (linear 30 %)" in lines[1]
+    assert "best on held-out points: ridge, velocity error one step ahead 10 %" in lines[2]
+    assert lines[3].endswith(
+        "ridge on 2 held-out points: height accuracy 85 %, "
+        "force x rel. RMSE 20 %, loop speed-up 40.0x"
+    )
+    assert lines[4].endswith("targets met: height_accuracy; missed: loop_speedup (1 of 2)")
