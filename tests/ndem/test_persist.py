@@ -8,7 +8,7 @@ import pytest
 from dozerlab.ndem.bodies import Bodies
 from dozerlab.ndem.params import Parameters
 from dozerlab.ndem.persist import load_world, save_world
-from dozerlab.ndem.state import SPHERE_FIELDS, WorldState
+from dozerlab.ndem.state import SPHERE_FIELDS, ZONE_FIELDS, WorldState
 from dozerlab.runtime import DozerlabError
 
 
@@ -36,12 +36,16 @@ def _parts() -> tuple[Parameters, WorldState, Bodies]:
 
 def test_round_trip_keeps_parameters_state_warm_start_and_bodies(tmp_path):
     params, state, bodies = _parts()
+    params = params.with_(active_zone=True, zone_margin=0.4)
+    state.awake[[0, 2]] = False
+    state.rest[1] = 0.03
     save_world(tmp_path / "w.npz", params, state, bodies)
     p, s, b = load_world(tmp_path / "w.npz")
     assert (p.dt, p.iterations, p.slabs) == (0.004, 12, 3)
+    assert (p.active_zone, p.zone_margin) == (True, 0.4)
     np.testing.assert_array_equal(p.gravity, [0.0, 0.0, -1.62])
     assert (s.time, s.step_count) == (0.4, 100)
-    for name in SPHERE_FIELDS:
+    for name in SPHERE_FIELDS + ZONE_FIELDS:
         np.testing.assert_array_equal(getattr(s, name), getattr(state, name))
     np.testing.assert_array_equal(s.warm.lam, state.warm.lam)
     np.testing.assert_array_equal(s.warm.start, state.warm.start)
@@ -53,9 +57,13 @@ def test_round_trip_keeps_parameters_state_warm_start_and_bodies(tmp_path):
 def test_a_file_without_a_later_parameter_loads_its_default(tmp_path):
     save_world(tmp_path / "w.npz", *_parts())
     with np.load(tmp_path / "w.npz") as f:
-        arrays = {k: f[k] for k in f.files if k != "param_slabs"}
+        arrays = {
+            k: f[k] for k in f.files if k not in ("param_slabs", "sphere_awake", "sphere_rest")
+        }
     np.savez(tmp_path / "old.npz", **arrays)
-    assert load_world(tmp_path / "old.npz")[0].slabs == Parameters().slabs
+    params, state, _ = load_world(tmp_path / "old.npz")
+    assert params.slabs == Parameters().slabs
+    assert state.awake.all() and not state.rest.any()  # before the active zone: all awake
 
 
 def test_a_file_of_another_format_is_refused(tmp_path):

@@ -250,3 +250,66 @@ def test_overlap_pass_matches_numpy_on_pairs_bodies_and_nan():
     gap[[7, 9]] = np.nan  # a NaN wins, the first one, as in numpy
     k, f, _, g = _overlaps(r, ci, cj, gap)
     assert k == 7 and np.isnan(f) and np.isnan(g)
+
+
+def _row_and_blade(**params) -> tuple[World, int]:
+    """Spheres in a row on the ground along x (gaps of one radius), a blade box behind the
+    first moving +x at 0.5 m/s."""
+    w = World(**params)
+    w.add_plane()
+    x = 0.3 + 3.0 * R * np.arange(24)
+    w.add_spheres(np.stack([x, np.zeros_like(x), np.full_like(x, R)], axis=1), radius=R)
+    blade = w.add_box((0.2, 0.0, 0.1), (0.05, 0.2, 0.1), kinematic=True)
+    w.set_velocity(blade, (0.5, 0.0, 0.0))
+    return w, blade
+
+
+def test_active_zone_holds_still_what_the_blade_has_not_reached():
+    w, _ = _row_and_blade(active_zone=True, zone_margin=0.2, rest_time=0.05)
+    w.step(12)
+    asleep = ~w.state.public(w.state.awake)
+    far = w.positions[:, 0] > 1.5
+    assert asleep[far].all() and not asleep[w.positions[:, 0] < 0.5].any()
+    held = w.positions[far]
+    w.step(30)
+    np.testing.assert_array_equal(w.positions[far], held)  # never stepped, bit for bit
+    assert w.last_stats.active < w.n_spheres
+    assert w.last_stats.active == int(w.state.awake.sum())
+    assert w.positions[0, 0] > 0.4  # the blade pushed the first one along
+
+
+def test_active_zone_wakes_a_sleeping_grain_that_a_moving_one_reaches():
+    w = World(active_zone=True, rest_time=0.05, friction=0.0, rolling_resistance=0.0)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R], [0.3, 0.0, R]], radius=R)
+    w.step(10)
+    assert not w.state.awake.any() and w.last_stats.active == 0
+    v = np.zeros((2, 3))
+    v[0, 0] = 1.0
+    w.velocities = v  # a velocity set from outside wakes the sphere
+    w.step(1)
+    awake = w.state.public(w.state.awake)
+    assert awake[0] and not awake[1]
+    x1 = w.positions[1, 0]
+    w.step(40)
+    assert w.positions[1, 0] > x1 + 0.03  # hit, woken and pushed on
+
+
+def test_active_zone_covering_every_grain_changes_nothing():
+    full, _ = _row_and_blade()
+    zoned, _ = _row_and_blade(active_zone=True, zone_margin=100.0)
+    full.step(30)
+    zoned.step(30)
+    np.testing.assert_array_equal(zoned.positions, full.positions)
+    np.testing.assert_array_equal(zoned.force_on(1), full.force_on(1))
+    assert zoned.last_stats.active == full.last_stats.active == full.n_spheres
+
+
+def test_active_zone_reads_its_config_section():
+    from dozerlab.config import load_config
+    from dozerlab.ndem.params import Parameters
+
+    zone = {"enabled": True, "margin": 0.5, "rest_speed": 0.01, "rest_time": 0.2}
+    p = Parameters.from_config(load_config({"solver": {"active_zone": zone}}))
+    assert (p.active_zone, p.zone_margin, p.rest_speed, p.rest_time) == (True, 0.5, 0.01, 0.2)
+    assert Parameters().active_zone is False  # off by default: the full solve

@@ -150,3 +150,38 @@ def test_different_grain_counts_are_refused(ndem_run, tmp_path):
         compare_point(
             store, store, tmp / "bed.npz", tmp / "ndem.npz", tmp_path / "fewer.npz", config
         )
+
+
+def test_gaussian_smooth_keeps_a_plane_and_spreads_a_spike():
+    from dozerlab.reduce.compare import gaussian_smooth
+
+    flat = np.full((20, 9), 0.3)
+    np.testing.assert_allclose(gaussian_smooth(flat, 2.0), flat)
+    spike = np.zeros((41, 41))
+    spike[20, 20] = 1.0
+    s = gaussian_smooth(spike, 3.0)
+    assert s.sum() == pytest.approx(1.0) and s[20, 20] == pytest.approx(
+        1 / (2 * np.pi * 9), rel=0.05
+    )
+
+
+def test_smoothed_surface_of_a_layer_is_its_top():
+    from dozerlab.reduce.compare import smoothed_surface
+
+    x, y = np.meshgrid(np.arange(0.05, 2.0, 0.1), np.arange(-0.45, 0.5, 0.1), indexing="ij")
+    pos = np.stack([x.ravel(), y.ravel(), np.full(x.size, 0.05)], axis=1)
+    h = smoothed_surface(pos, np.full(len(pos), 0.05), 2.0, 1.0, 0.1)
+    assert h.shape == (80, 40)
+    # a square lattice of touching spheres: between 0.05 (the gaps' rims) and 0.1 (their tops)
+    assert 0.06 < h.mean() < 0.1 and h.max() - h.min() < 0.03
+
+
+def test_low_pass_is_a_moving_mean():
+    from dozerlab.reduce.compare import low_pass
+
+    t = np.arange(200) * 0.01
+    f = np.stack([np.sin(2 * np.pi * 10 * t) + 2.0, t], axis=1)  # 10 Hz ripple on a constant
+    lp = low_pass(f, 0.01, 0.1)
+    assert lp.shape == f.shape
+    np.testing.assert_allclose(lp[10:-10, 0], 2.0, atol=1e-9)  # whole periods average out
+    np.testing.assert_allclose(lp[10:-10, 1], t[10:-10] - 0.005, atol=1e-9)

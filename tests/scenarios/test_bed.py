@@ -99,3 +99,12 @@ def test_scenario_names_are_the_schemas():
     for role in ("interpolation", "extrapolation"):
         assert tuple(sweep[role]["items"]["properties"]["scenario"]["enum"]) == SCENARIOS
     assert tuple(schema()["properties"]["scenarios"]["properties"]) == SCENARIOS
+
+
+def test_a_twin_bed_moves_every_grain_by_the_jitter_reproducibly(hill_bed):
+    twin = hill_bed.jittered(1e-6, seed=7)
+    moved = np.linalg.norm(twin.positions - hill_bed.positions, axis=1)
+    np.testing.assert_allclose(moved, 1e-6, rtol=1e-6)
+    np.testing.assert_array_equal(twin.positions, hill_bed.jittered(1e-6, seed=7).positions)
+    assert not np.array_equal(twin.positions, hill_bed.jittered(1e-6, seed=8).positions)
+    assert twin.info["jitter_m"] == 1e-6 and twin.count == hill_bed.count

@@ -101,6 +101,7 @@ def _simulate(
         "bin_size": list(grid.bin_size),
         "dt": dt,
         "iterations": int(config["solver"]["iterations"]),
+        "active_zone": dict(config["solver"]["active_zone"]),
         "sample_every": int(s["every"]),
         "particle_count": bed.count,
         "seed": int(config["seed"]),

@@ -46,6 +46,7 @@ class RunStats:
     step_time: float = 0.0
     sample_time: float = 0.0
     contact_iterations: float = 0.0
+    active: float = 0.0
     forces: list[np.ndarray] = field(default_factory=list)
 
     def metrics(self, particles: int) -> dict[str, float]:
@@ -62,6 +63,9 @@ class RunStats:
             if self.step_time > 0
             else 0.0,
             "particle_count": float(particles),
+            "active_fraction": self.active / (self.steps * particles)
+            if self.steps and particles
+            else 0.0,
         }
         if len(f):
             out |= {
@@ -129,7 +133,7 @@ def drive(
     stats = RunStats()
     x, y, z = grid.centres()
     start = wallclock.perf_counter()
-    window: list[tuple[float, int, float, float]] = []
+    window: list[tuple[float, int, float, float, int]] = []
     with (
         FieldStoreWriter(
             out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])
@@ -152,7 +156,8 @@ def drive(
             stats.steps += 1
             stats.step_time += dt_wall
             stats.contact_iterations += st.contacts * st.iterations
-            window.append((dt_wall, st.contacts, st.residual, st.max_overlap))
+            stats.active += st.active
+            window.append((dt_wall, st.contacts, st.residual, st.max_overlap, st.active))
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()
                 row = sample_row(world, blade, grid, traj, i + 1, centre_minus_tip)
@@ -164,10 +169,12 @@ def drive(
             if (i + 1) % log_every == 0 or i + 1 == traj.steps:
                 w = np.array(window)
                 log.info(
-                    "step %d/%d t=%.3f s: contacts %.0f, residual %.3g m/s, max overlap %.3g m, %.1f ms/step",
+                    "step %d/%d t=%.3f s: %.0f grains awake, contacts %.0f, residual %.3g m/s, "
+                    "max overlap %.3g m, %.1f ms/step",
                     i + 1,
                     traj.steps,
                     traj.time[i + 1],
+                    w[:, 4].mean(),
                     w[:, 1].mean(),
                     w[:, 2].mean(),
                     w[:, 3].max(),

@@ -170,6 +170,7 @@ def assemble(
     bg,
     slab,
     n_slabs,
+    awake,
     pos,
     vel,
     radii,
@@ -188,23 +189,29 @@ def assemble(
     """Order the contacts for the partitioned sweep and compute their row constants.
 
     Group s < S holds contacts inside slab s (and all body contacts of its spheres); group
-    S + s holds contacts between slabs s and s + 1. Returns i (Nc,), j (Nc,), the table
-    (Nc, NCOL), overlap (Nc,) and group offsets (2S + 1,).
+    S + s holds contacts between slabs s and s + 1; group 2S holds the frozen contacts, of a
+    sleeping sphere (``awake`` (N,) False) with a sleeping sphere or a body, which the solver
+    leaves as they are (their warm-start multipliers kept). ``invm``/``invI`` are 0 for a
+    sleeping sphere (a fixed obstacle to the awake ones). Returns i (Nc,), j (Nc,), the table
+    (Nc, NCOL), overlap (Nc,) and group offsets (2S + 2,).
     """
     mp = pi.shape[0]
     mt = mp + bi.shape[0]
     group = np.empty(mt, dtype=np.int64)
+    frozen = 2 * n_slabs
     for k in range(mt):
         if k < mp:
             si = slab[pi[k]]
             sj = slab[pj[k]]
             group[k] = si if si == sj else n_slabs + min(si, sj)
+            if not (awake[pi[k]] or awake[pj[k]]):
+                group[k] = frozen
         else:
-            group[k] = slab[bi[k - mp]]
-    start = np.zeros(2 * n_slabs + 1, dtype=np.int64)
+            group[k] = slab[bi[k - mp]] if awake[bi[k - mp]] else frozen
+    start = np.zeros(2 * n_slabs + 2, dtype=np.int64)
     for k in range(mt):
         start[group[k] + 1] += 1
-    for g in range(2 * n_slabs):
+    for g in range(2 * n_slabs + 1):
         start[g + 1] += start[g]
     fill = start[:-1].copy()
     src = np.empty(mt, dtype=np.int64)
@@ -259,8 +266,8 @@ def assemble(
         cd[k, RI] = ri
         rj = cd[k, RJ]
         sn = invm[i] + imj
-        cd[k, KT] = 1.0 / (sn + ri * ri * invI[i] + rj * rj * iij)
-        cd[k, KR] = 1.0 / (invI[i] + iij)
+        cd[k, KT] = _inverse(sn + ri * ri * invI[i] + rj * rj * iij)
+        cd[k, KR] = _inverse(invI[i] + iij)
         un0 = 0.0
         for a in range(3):
             vj = vel[j, a] if j >= 0 else cd[k, VB + a]
@@ -285,8 +292,14 @@ def assemble(
             rhs = 4.0 * upsilon / h * 0.8 * g + upsilon * un0
         cd[k, SIG] = sig
         cd[k, B] = rhs
-        cd[k, KN] = 1.0 / (sn + sig)
+        cd[k, KN] = _inverse(sn + sig)
     return ci, cj, cd, gap, start
+
+
+@njit(cache=True, inline="always")
+def _inverse(a):
+    """1/a, and 0 for a = 0 (a frozen row between fixed obstacles: never solved)."""
+    return 1.0 / a if a > 0.0 else 0.0
 
 
 @njit(cache=True)

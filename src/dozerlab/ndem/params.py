@@ -29,6 +29,13 @@ SOLVER_KEYS = (
     "relaxation",
     "tolerance",
 )
+# solver.active_zone's keys and the Parameters fields they fill.
+ZONE_KEYS = {
+    "enabled": "active_zone",
+    "margin": "zone_margin",
+    "rest_speed": "rest_speed",
+    "rest_time": "rest_time",
+}
 MATERIAL_KEYS = (
     "density",
     "youngs_modulus",
@@ -45,9 +52,12 @@ def schema_defaults() -> dict[str, Any]:
     from dozerlab.config import load_config
 
     full = load_config(None)
-    return {k: full["solver"][k] for k in SOLVER_KEYS} | {
-        k: full["material"][k] for k in MATERIAL_KEYS
-    }
+    zone = full["solver"]["active_zone"]
+    return (
+        {k: full["solver"][k] for k in SOLVER_KEYS}
+        | {k: full["material"][k] for k in MATERIAL_KEYS}
+        | {name: zone[k] for k, name in ZONE_KEYS.items()}
+    )
 
 
 def _schema(name: str) -> Callable[[], Any]:
@@ -68,7 +78,9 @@ class Parameters:
     DivergenceError; density (kg/m³), friction μ and rolling_resistance μ_r: sphere defaults;
     wall_friction: body default μ; contact_margin: speculative gap as a fraction of the smallest
     radius; slabs: parallel sweep partitions (the result depends on it, not on threads);
-    warm_start: start from the last step's multipliers.
+    warm_start: start from the last step's multipliers; active_zone: step only the grains that
+    can move (``solver.active_zone``), grains at rest outside the moving boxes grown by
+    zone_margin (m) sleeping once slower than rest_speed (m/s) for rest_time (s).
     """
 
     dt: float = field(default_factory=_schema("dt"))
@@ -88,6 +100,10 @@ class Parameters:
     contact_margin: float = 0.02
     slabs: int = 16
     warm_start: bool = True
+    active_zone: bool = field(default_factory=_schema("active_zone"))
+    zone_margin: float = field(default_factory=_schema("zone_margin"))
+    rest_speed: float = field(default_factory=_schema("rest_speed"))
+    rest_time: float = field(default_factory=_schema("rest_time"))
 
     def __post_init__(self) -> None:
         def put(name: str, value: object) -> None:
@@ -126,14 +142,20 @@ class Parameters:
         put("contact_margin", nonnegative("contact_margin", self.contact_margin))
         put("slabs", int(self.slabs))
         put("warm_start", bool(self.warm_start))
+        put("active_zone", bool(self.active_zone))
+        for name in ("zone_margin", "rest_speed", "rest_time"):
+            put(name, nonnegative(name, getattr(self, name)))
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> Parameters:
         """Parameters from a config's ``solver`` and ``material`` sections (missing: defaults)."""
         s, m = config.get("solver", {}), config.get("material", {})
-        given = {k: s[k] for k in SOLVER_KEYS if k in s} | {
-            k: m[k] for k in MATERIAL_KEYS if k in m
-        }
+        zone = s.get("active_zone", {})
+        given = (
+            {k: s[k] for k in SOLVER_KEYS if k in s}
+            | {k: m[k] for k in MATERIAL_KEYS if k in m}
+            | {name: zone[k] for k, name in ZONE_KEYS.items() if k in zone}
+        )
         return cls(**given)
 
     def with_(self, **changes: Any) -> Parameters:

@@ -15,7 +15,7 @@ from dozerlab.integrity import read_npz, require_finite
 from dozerlab.ndem.bodies import FIELDS as BODY_FIELDS
 from dozerlab.ndem.bodies import Bodies
 from dozerlab.ndem.params import NAMES, Parameters
-from dozerlab.ndem.state import SPHERE_FIELDS, WorldState
+from dozerlab.ndem.state import SPHERE_FIELDS, ZONE_FIELDS, WorldState
 from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, npz_with
 
 FORMAT_VERSION = 1
@@ -32,7 +32,7 @@ def save_world(path: str | Path, params: Parameters, state: WorldState, bodies: 
     arrays |= {f"param_{p}": np.array(getattr(params, p)) for p in SCALARS}
     arrays |= {"param_gravity": params.gravity}
     arrays |= {"param_time": np.array(state.time), "param_step_count": np.array(state.step_count)}
-    arrays |= {f"sphere_{f}": getattr(state, f) for f in SPHERE_FIELDS}
+    arrays |= {f"sphere_{f}": getattr(state, f) for f in SPHERE_FIELDS + ZONE_FIELDS}
     arrays |= {f"body_{f}": getattr(bodies, f) for f in BODY_FIELDS}
     arrays |= {
         "body_force": bodies.force,
@@ -58,6 +58,12 @@ def load_world(path: str | Path) -> tuple[Parameters, WorldState, Bodies]:
         state = WorldState(time=float(f["param_time"]), step_count=int(f["param_step_count"]))
         for name in SPHERE_FIELDS:
             setattr(state, name, np.ascontiguousarray(f[f"sphere_{name}"]))
+        # files from before the active zone: every sphere awake, none resting
+        n = state.n
+        state.awake = (
+            f["sphere_awake"].astype(np.bool_) if "sphere_awake" in f else np.ones(n, np.bool_)
+        )
+        state.rest = f["sphere_rest"].astype(np.float64) if "sphere_rest" in f else np.zeros(n)
         state.warm.start = f["warm_start"].copy()
         state.warm.hi = f["warm_hi"].copy()
         state.warm.lam = f["warm_lam"].copy()

@@ -174,13 +174,15 @@ def solve(
     Returns the RMS normal-row update of the last sweep (m/s) and the sweeps run. With
     ``warm`` the incoming ``lam`` are first applied to ``v``/``w``; otherwise ``lam`` must be
     zero. Sums are taken per slab task and then in slab order, so the result does not depend
-    on the thread count.
+    on the thread count. ``start`` (2S + 2,) holds the group offsets of
+    :func:`dozerlab.ndem.contacts.assemble`; the frozen group 2S is applied but not swept.
     """
-    nc = ci.shape[0]
     n = v.shape[0]
     if warm:
-        for k in range(nc):
+        for k in range(ci.shape[0]):
             _apply(k, ci, cj, cd, lam, v, w, invm, invI)
+    # the contacts swept: the groups before 2S (group 2S, the frozen ones, is left as it is)
+    nc = start[2 * n_slabs]
     nncg = method == 1
     mc = nc if nncg else 0
     ms = n if nncg else 0

@@ -17,6 +17,9 @@ from dozerlab.ndem.warmstart import WarmStart
 # velocity (N, 3) rad/s, radius (N,) m, mass (N,) kg, friction μ (N,), rolling resistance (N,),
 # sphere id (N,) int64.
 SPHERE_FIELDS = ("x", "v", "w", "r", "m", "mu", "mur", "id")
+# The active zone's per-sphere arrays, in slot order: awake (N,) bool (False: asleep, held
+# still) and the time at rest outside the zone (N,) s. New spheres are awake.
+ZONE_FIELDS = ("awake", "rest")
 
 
 @njit(cache=True)
@@ -58,6 +61,8 @@ class WorldState:
     mu: np.ndarray = field(default_factory=_scalars)
     mur: np.ndarray = field(default_factory=_scalars)
     id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    awake: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=np.bool_))
+    rest: np.ndarray = field(default_factory=_scalars)
     warm: WarmStart = field(default_factory=WarmStart)
     time: float = 0.0
     step_count: int = 0
@@ -77,14 +82,18 @@ class WorldState:
             (self.x, self.v, self.w, self.r, self.m, self.mu, self.mur, self.id) = _gather(
                 index, self.x, self.v, self.w, self.r, self.m, self.mu, self.mur, self.id
             )
+            self.awake, self.rest = self.awake[index], self.rest[index]
             return
-        for f in SPHERE_FIELDS:
+        for f in SPHERE_FIELDS + ZONE_FIELDS:
             setattr(self, f, np.ascontiguousarray(getattr(self, f)[index]))
 
     def append(self, **arrays: np.ndarray) -> None:
-        """Append spheres: one array per name of :data:`SPHERE_FIELDS`."""
+        """Append awake spheres: one array per name of :data:`SPHERE_FIELDS`."""
         for f in SPHERE_FIELDS:
             setattr(self, f, np.concatenate([getattr(self, f), arrays[f]]))
+        n = arrays["id"].shape[0]
+        self.awake = np.concatenate([self.awake, np.ones(n, dtype=np.bool_)])
+        self.rest = np.concatenate([self.rest, np.zeros(n)])
 
     def public(self, a: np.ndarray) -> np.ndarray:
         """A per-slot array reordered to id order (a copy)."""

@@ -20,7 +20,8 @@ class StepStats:
     update, in m/s (→ 0 as the solver converges); max_overlap: largest overlap in m and
     max_overlap_fraction the largest overlap over the smaller radius, at the start of the step;
     step and time (s) after the step; iterations: solver sweeps run (at most
-    ``solver.iterations``; fewer when ``solver.tolerance`` stopped the solve).
+    ``solver.iterations``; fewer when ``solver.tolerance`` stopped the solve); active: spheres
+    awake after the step (all of them unless ``solver.active_zone`` is enabled).
     """
 
     step: int
@@ -31,3 +32,4 @@ class StepStats:
     max_overlap: float
     max_overlap_fraction: float
     iterations: int = 0
+    active: int = 0

@@ -11,6 +11,7 @@ from numba import njit
 
 from dozerlab.ndem import broadphase, contacts, solver
 from dozerlab.ndem.bodies import Bodies
+from dozerlab.ndem.contacts import BOX, _body_test
 from dozerlab.ndem.params import METHODS, Parameters
 from dozerlab.ndem.state import WorldState
 from dozerlab.ndem.stats import DivergenceError, StepStats
@@ -82,7 +83,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         bodies.integrate(h)
         state.time += h
         state.step_count += 1
-        return StepStats(state.step_count, state.time, 0, 0, 0.0, 0.0, 0.0)
+        return StepStats(state.step_count, state.time, 0, 0, 0.0, 0.0, 0.0, active=0)
 
     if not solver.all_finite(state.x, state.v, state.w):
         _raise_non_finite(state, "before")
@@ -92,18 +93,44 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
     pairs = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
+    rot = bodies.rotations()
     hits = contacts.body_contacts(
         state.x,
         state.r,
         2.0 * (reach - state.r) + p.dt * body_speed,
         bodies.kind,
         bodies.center,
-        bodies.rotations(),
+        rot,
         bodies.half,
         bodies.normal,
     )
     invm = 1.0 / state.m
     invI = 1.0 / (0.4 * state.m * state.r**2)
+    zone = np.zeros(0, dtype=np.bool_)
+    if p.active_zone:
+        zone = _wake(
+            state.awake,
+            state.rest,
+            state.x,
+            state.v,
+            state.w,
+            state.r,
+            pairs[0],
+            pairs[1],
+            hits[0],
+            hits[1],
+            bodies.kinematic & (bodies.kind == BOX),
+            bodies.kind,
+            bodies.center,
+            rot,
+            bodies.half,
+            bodies.normal,
+            p.zone_margin,
+            p.rest_speed,
+        )
+        # a sleeping sphere is a fixed obstacle to the awake ones: infinite mass and inertia
+        invm = invm * state.awake
+        invI = invI * state.awake
     nu = p.poisson_ratio
     estar = p.youngs_modulus / (2.0 * (1.0 - nu * nu))
     upsilon = 1.0 / (1.0 + 4.0 * p.damping_steps)
@@ -112,6 +139,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         *hits,
         slab,
         n_slabs,
+        state.awake,
         state.x,
         state.v,
         state.r,
@@ -129,7 +157,10 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     )
     frac_max, touching, gap_max = _check_overlap(state, p, ci, cj, gap)
 
-    state.v += h * p.gravity
+    if p.active_zone:
+        state.v[state.awake] += h * p.gravity
+    else:
+        state.v += h * p.gravity
     if p.warm_start:
         lam = state.warm.lookup(state.id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
     else:
@@ -153,11 +184,20 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             p.relaxation,
         )
     state.warm.store(state.id, ci, cj, lam)
+    if p.active_zone:
+        _wake_loaded(
+            state.awake, state.rest, ci, cj, cd, lam, 1.0 / state.m, h * p.gravity, p.rest_speed
+        )
     bodies.force, bodies.torque = contacts.body_loads(
         ci, cj, cd, lam, state.x, bodies.center, nb, h
     )
     if solver.integrate(state.x, state.v, state.w, h):
         _raise_non_finite(state, "after")
+    active = state.n
+    if p.active_zone:
+        active = _settle(
+            state.awake, state.rest, zone, state.v, state.w, state.r, h, p.rest_speed, p.rest_time
+        )
     bodies.integrate(h)
     state.time += h
     state.step_count += 1
@@ -170,7 +210,132 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         max_overlap=gap_max,
         max_overlap_fraction=frac_max,
         iterations=int(sweeps),
+        active=int(active),
     )
+
+
+@njit(cache=True)
+def _wake(
+    awake,
+    rest,
+    x,
+    v,
+    w,
+    r,
+    pi,
+    pj,
+    bi,
+    bb,
+    zone_body,
+    kind,
+    center,
+    rot,
+    half,
+    normal,
+    margin,
+    speed,
+):
+    """Wake the sleeping spheres that can move now, in place; returns which spheres lie in the
+    zone (N,) bool.
+
+    A sphere wakes when it lies within ``margin`` (m) of a body with ``zone_body`` (the blade),
+    when a sphere pair (``pi``, ``pj``) or body contact (``bi``, ``bb``) within contact reach
+    joins it to an awake sphere faster than ``speed`` (m/s) or to a zone body, or when its
+    velocity was set while it slept (a sleeping sphere's velocities are zero). A sphere woken
+    here has not moved yet, so it wakes no other this step: the zone grows with the motion.
+    """
+    n = x.shape[0]
+    zone = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for b in range(kind.shape[0]):
+            if zone_body[b]:
+                g = _body_test(x[i], r[i], margin, kind[b], center[b], rot[b], half[b], normal[b])[
+                    0
+                ]
+                if g > -margin:
+                    zone[i] = True
+        moved = False
+        if not awake[i]:
+            for a in range(3):
+                moved = moved or v[i, a] != 0.0 or w[i, a] != 0.0
+        if zone[i] or moved:
+            awake[i] = True
+            rest[i] = 0.0
+    s2 = speed * speed
+    for k in range(pi.shape[0]):
+        i, j = pi[k], pj[k]
+        if awake[i] == awake[j]:
+            continue
+        a, b = (i, j) if awake[i] else (j, i)
+        if v[a, 0] * v[a, 0] + v[a, 1] * v[a, 1] + v[a, 2] * v[a, 2] > s2:
+            awake[b] = True
+            rest[b] = 0.0
+    for t in range(bi.shape[0]):
+        if zone_body[bb[t]]:
+            awake[bi[t]] = True
+            rest[bi[t]] = 0.0
+    return zone
+
+
+@njit(cache=True)
+def _wake_loaded(awake, rest, ci, cj, cd, lam, invm, hg, speed):
+    """Wake, in place, the sleeping spheres that this step's impulses no longer hold still.
+
+    A sleeping sphere's contacts held it at rest when it fell asleep. Summed with gravity's
+    impulse ``hg`` (3,) m/s, the impulses ``lam`` (Nc, 7) of all its contacts now — the frozen
+    ones and those with awake spheres, solved against it as a fixed obstacle — would change its
+    velocity by Δv (``invm`` (N,) 1/kg, its own); beyond ``speed`` (m/s) it wakes, to move
+    from the next step on. So a load passed on through resting grains (a force chain ahead of
+    the pile) wakes them though nothing near them moves yet.
+    """
+    n = awake.shape[0]
+    dv = np.zeros((n, 3))
+    for k in range(ci.shape[0]):
+        i, j = ci[k], cj[k]
+        si = not awake[i]
+        sj = j >= 0 and not awake[j]
+        if not (si or sj):
+            continue
+        for a in range(3):
+            f = lam[k, 0] * cd[k, contacts.N0 + a] + lam[k, 1 + a]
+            if si:
+                dv[i, a] += invm[i] * f
+            if sj:
+                dv[j, a] -= invm[j] * f
+    s2 = speed * speed
+    for i in range(n):
+        if awake[i]:
+            continue
+        d0, d1, d2 = dv[i, 0] + hg[0], dv[i, 1] + hg[1], dv[i, 2] + hg[2]
+        if d0 * d0 + d1 * d1 + d2 * d2 > s2:
+            awake[i] = True
+            rest[i] = 0.0
+
+
+@njit(cache=True)
+def _settle(awake, rest, zone, v, w, r, h, speed, rest_time):
+    """Put to sleep, in place, the awake spheres outside the ``zone`` that have moved slower
+    than ``speed`` (m/s, centre and spin at the surface) for ``rest_time`` (s), their velocities
+    zeroed; ``h`` is the step (s). Returns the spheres awake."""
+    s2 = speed * speed
+    count = 0
+    for i in range(awake.shape[0]):
+        if not awake[i]:
+            continue
+        vv = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]
+        ww = (w[i, 0] * w[i, 0] + w[i, 1] * w[i, 1] + w[i, 2] * w[i, 2]) * r[i] * r[i]
+        if zone[i] or vv > s2 or ww > s2:
+            rest[i] = 0.0
+        else:
+            rest[i] += h
+        if rest[i] >= rest_time and rest[i] > 0.0:
+            awake[i] = False
+            for a in range(3):
+                v[i, a] = 0.0
+                w[i, a] = 0.0
+        else:
+            count += 1
+    return count
 
 
 @njit(cache=True)

@@ -81,6 +81,10 @@ class World:
     contact_margin = _parameter("contact_margin")
     slabs = _parameter("slabs")
     warm_start = _parameter("warm_start")
+    active_zone = _parameter("active_zone")
+    zone_margin = _parameter("zone_margin")
+    rest_speed = _parameter("rest_speed")
+    rest_time = _parameter("rest_time")
 
     @property
     def time(self) -> float:
