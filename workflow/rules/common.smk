@@ -78,6 +78,11 @@ def config_json(*sections, scenario=None, fields=None):
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
 
 
+# The solver fields a bed or a trajectory reads: not the active zone, which only the blade's
+# pass uses (beds settle with every grain stepped), so switching it reruns no bed.
+BED_SOLVER_FIELDS = [k for k in config["solver"] if k != "active_zone"]
+
+
 def reduce_config_json():
     """What a reduce job reads: the sections of the run and, of the reduced section, the loop's
     settings (dozerlab.reduce.LOOP_FIELDS); not the targets, which only the comparison and the

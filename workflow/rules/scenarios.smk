@@ -11,7 +11,10 @@ rule bed:
     resources:
         **cluster.job_resources(config, "bed"),
     params:
-        cfg=lambda wc: config_json("seed", "solver", "material", "bed", "scenarios", scenario=wc.scenario),
+        cfg=lambda wc: config_json(
+            "seed", "solver", "material", "bed", "scenarios", scenario=wc.scenario,
+            fields={"solver": BED_SOLVER_FIELDS},
+        ),
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab bed --scenario {wildcards.scenario} --config {params.cfg:q}"
         " --out {output.bed:q} --plot {output.plot:q} --threads {threads} --no-progress > {log:q} 2>&1"
@@ -37,7 +40,10 @@ rule trajectory:
         **cluster.job_resources(config, "trajectory"),
     priority: run_priority
     params:
-        cfg=lambda wc: config_json("solver", "scenarios", "blade", "trajectory", scenario=wc.scenario),
+        cfg=lambda wc: config_json(
+            "solver", "scenarios", "blade", "trajectory", scenario=wc.scenario,
+            fields={"solver": BED_SOLVER_FIELDS},
+        ),
     shell:
         "python -m dozerlab trajectory --bed {input.bed:q} --speed {wildcards.speed} --depth {wildcards.depth}"
         " --config {params.cfg:q} --out {output.csv:q} --plot {output.plot:q} > {log:q} 2>&1"
