@@ -148,8 +148,7 @@ def summary_lines(results: str | Path, cfg: Mapping[str, Any], wall_s: float) ->
         best = min(ratios, key=lambda m: max(ratios[m].values(), default=float("inf")))
         said = ", ".join(f"{v:.2f}x {k.replace('_', ' ')}" for k, v in ratios[best].items())
         lines.append(
-            f"  evolution best on held-out points: {best}, velocity error over persistence's "
-            f"{said}"
+            f"  evolution best on held-out points: {best}, velocity error over persistence's {said}"
         )
     for model, o in reduced_outcomes(results, cfg).items():
         f = o["figures"]
