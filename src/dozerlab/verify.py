@@ -43,10 +43,13 @@ _KNOWN = (
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
+    from dozerlab.cliargs import add_command
+
+    p = add_command(
+        sub,
         "verify",
-        help="check results artifacts or whole results folders for damage (checksums)",
-        description=__doc__.splitlines()[0] if __doc__ else None,
+        "check results artifacts or whole results folders for damage (checksums)",
+        "python -m dozerlab verify results",
     )
     p.add_argument("paths", nargs="+", metavar="PATH", help="an artifact or a results folder")
     p.set_defaults(func=_verify)
