@@ -97,6 +97,8 @@ def reduce_points_job(
     its own MLflow run (tag ``rule`` reduce_training_points). Returns the points' metrics.
     Every point's outputs are checked before the first run; a failure leaves none of them.
     """
+    from dozerlab.fields.sampling import SamplingGrid
+    from dozerlab.reduce.models import REPLAY, ForcePredictor, load_field_model
     from dozerlab.reduce.run import REDUCED_STATE, REDUCED_STORE
 
     check_name(dynamics_model, "--dynamics-model")
@@ -110,41 +112,29 @@ def reduce_points_job(
         for ext, kind in (("zarr", REDUCED_STORE), ("npz", REDUCED_STATE))
     ]
     with job_outputs(*outputs):
-        return _reduce_points(results, dynamics_model, points, config, dynamics, force_model)
-
-
-def _reduce_points(
-    results: str | Path,
-    dynamics_model: str,
-    points: list[P.SweepPoint],
-    config: dict[str, Any],
-    dynamics: str | Path,
-    force_model: str | Path,
-) -> list[dict[str, float]]:
-    from dozerlab.fields.sampling import SamplingGrid
-    from dozerlab.reduce.models import REPLAY, ForcePredictor, load_field_model
-
-    grid = SamplingGrid.from_config(config)
-    forces = ForcePredictor(force_model)
-    # replay's fields are each point's own NDEM run; a learned model is loaded once
-    shared = None if str(dynamics) == REPLAY else load_field_model(dynamics, grid.bins)
-    freeze_heap()
-    metrics = []
-    for point in points:
-        field_model = shared or load_field_model(REPLAY, grid.bins, P.field_path(results, point))
-        target = _Target(
-            P.bed_path(results, point.scenario),
-            P.trajectory_path(results, point),
-            P.reduced_path(results, dynamics_model, point),
-            P.reduced_path(results, dynamics_model, point, "npz"),
-            point.scenario,
-            point.speed,
-            point.depth,
-        )
-        metrics.append(
-            _tracked_reduce("reduce_training_points", target, config, field_model, forces)
-        )
-    return metrics
+        grid = SamplingGrid.from_config(config)
+        forces = ForcePredictor(force_model)
+        # replay's fields are each point's own NDEM run; a learned model is loaded once
+        shared = None if str(dynamics) == REPLAY else load_field_model(dynamics, grid.bins)
+        freeze_heap()
+        metrics = []
+        for point in points:
+            field_model = shared or load_field_model(
+                REPLAY, grid.bins, P.field_path(results, point)
+            )
+            target = _Target(
+                P.bed_path(results, point.scenario),
+                P.trajectory_path(results, point),
+                P.reduced_path(results, dynamics_model, point),
+                P.reduced_path(results, dynamics_model, point, "npz"),
+                point.scenario,
+                point.speed,
+                point.depth,
+            )
+            metrics.append(
+                _tracked_reduce("reduce_training_points", target, config, field_model, forces)
+            )
+        return metrics
 
 
 @dataclass(frozen=True)
