@@ -86,7 +86,7 @@ def test_install_replaces_the_console_handler_and_keeps_the_file_log(tmp_path):
     logger.addHandler(file_handler)
     out = io.StringIO()
     try:
-        assert console.install(logger, out)
+        assert console.install(logger, ColorizingTextHandler, out)
         assert old not in logger.handlers and file_handler in logger.handlers
         logger.info("Shell command: python -m dozerlab bed", extra={"event": LogEvent.SHELLCMD})
         logger.info("Building DAG of jobs...")
@@ -96,7 +96,7 @@ def test_install_replaces_the_console_handler_and_keeps_the_file_log(tmp_path):
         file_handler.close()
     assert out.getvalue() == "Building DAG of jobs...\n"
     assert "Shell command: python -m dozerlab bed" in (tmp_path / "snakemake.log").read_text()
-    assert not console.install(logging.getLogger("test_console_none"))
+    assert not console.install(logging.getLogger("test_console_none"), ColorizingTextHandler)
 
 
 def test_a_dry_run_keeps_snakemakes_console():
@@ -107,6 +107,6 @@ def test_a_dry_run_keeps_snakemakes_console():
     old.addFilter(DefaultFilter(None, False, False, True, True))  # dryrun
     logger.addHandler(old)
     try:
-        assert not console.install(logger) and old in logger.handlers
+        assert not console.install(logger, ColorizingTextHandler) and old in logger.handlers
     finally:
         logger.removeHandler(old)

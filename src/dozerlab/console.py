@@ -137,20 +137,23 @@ class ConsoleHandler(logging.StreamHandler):
             self.handleError(record)
 
 
-def install(logger: logging.Logger, stream: TextIO | None = None) -> bool:
-    """Replace Snakemake's console handler on ``logger`` by a :class:`ConsoleHandler` writing
-    to ``stream`` (default stderr); return whether there was one to replace.
+def install(
+    logger: logging.Logger, console: type[logging.Handler], stream: TextIO | None = None
+) -> bool:
+    """Replace Snakemake's console handler on ``logger`` (of class ``console``, Snakemake's
+    ``ColorizingTextHandler``: the Snakefile names it, so the package needs no Snakemake) by a
+    :class:`ConsoleHandler` writing to ``stream`` (default stderr); return whether there was
+    one to replace.
 
     The replaced handler's filters (Snakemake's ``--quiet`` choices) stay; its file handler
     (``.snakemake/log``) and the handlers of logger plugins are left as they are. A dry run
     (``-n``) or ``--verbose`` keeps Snakemake's console: its filter says so (the workflow's own
     ``dryrun`` is not known yet when the Snakefile is read).
     """
-    from snakemake.logging import ColorizingTextHandler
 
     def wanted(handler: logging.Handler) -> bool:
         says = [getattr(f, k, False) for f in handler.filters for k in ("dryrun", "verbose")]
-        return isinstance(handler, ColorizingTextHandler) and not any(says)
+        return isinstance(handler, console) and not any(says)
 
     found = [h for h in logger.handlers if wanted(h)]
     for old in found:

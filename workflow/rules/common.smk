@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
-from snakemake.logging import logger
+from snakemake.logging import ColorizingTextHandler, logger
 
 from dozerlab import cluster, console, headline, runtime, spool, tracking
 from dozerlab.config import load_config, read_yaml, schema
@@ -23,7 +23,7 @@ STARTED = time.time()
 # One line per job start and end on the console (dozerlab.console); Snakemake's log under
 # .snakemake/log keeps its full output, shell commands included. Dry runs (-n) and --verbose
 # keep Snakemake's.
-console.install(logger)
+console.install(logger, ColorizingTextHandler)
 
 # Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
 # here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
