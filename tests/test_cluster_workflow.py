@@ -113,7 +113,9 @@ def sweep(tmp_path_factory):
     wall = time.monotonic() - start
     print(f"quick sweep through SLURM: {wall:.0f} s")  # shown with pytest -s; README records it
     assert done.returncode == 0, done.stderr[-5000:]
-    return workdir, experiment, done.stderr
+    # the console shows a line per job; Snakemake's own log keeps every submission and its log
+    (log,) = (workdir / ".snakemake" / "log").glob("*.snakemake.log")
+    return workdir, experiment, log.read_text()
 
 
 EXPECTED_RUNS = expected_job_runs(CFG)

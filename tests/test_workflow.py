@@ -211,7 +211,9 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     parent = parents[0]
     assert parent.info.status == "FINISHED"
     artifacts = {a.path for a in client.list_artifacts(parent.info.run_id)}
-    assert "index.html" in artifacts
+    assert "report" in artifacts  # the report's folder: the page and its animations
+    page = {a.path for a in client.list_artifacts(parent.info.run_id, "report")}
+    assert {"report/index.html", "report/animations"} <= page
     assert any(a.endswith(".snakemake.log") for a in artifacts), artifacts  # Snakemake's own log
     assert parent.data.tags["dozerlab.host"] and parent.data.tags["dozerlab.pid"].isdigit()
     assert parent.data.params["sweep.speeds"] == str(CFG["sweep"]["speeds"])

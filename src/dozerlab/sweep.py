@@ -159,6 +159,7 @@ PATHS = {
     "dynamics_plots": "dynamics/plots/{model}",
     "report": "report/index.html",
     "report_dir": "report",
+    "report_animations": "report/animations",
 }
 #: The workflow's results directory (relative to its working directory).
 RESULTS = "results"

@@ -212,7 +212,7 @@ def all_targets():
     targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
     targets += reduced_comparisons()
-    targets.append(P.pattern("report_dir"))
+    targets += [P.pattern("report"), P.pattern("report_animations")]
     return targets
 
 

@@ -10,13 +10,10 @@ rule report:
         reduced=reduced_comparisons(),
         dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
     output:
-        # the page (P.pattern("report")) and its animations folder beside it
-        report(
-            directory(P.pattern("report_dir")),
-            htmlindex="index.html",
-            caption="../report/index.rst",
-            category="Report",
-        ),
+        # the page and its animations folder beside it; Snakemake's own report (--report) takes
+        # the page alone: a folder would make it a zip
+        page=report(P.pattern("report"), caption="../report/index.rst", category="Report"),
+        animations=directory(P.pattern("report_animations")),
     log:
         "logs/report.log",
     threads: config["threads"]["report"]
