@@ -23,7 +23,6 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     )
     write(P.validation_path(tmp_path, "linear"), {"overall": {"force_x": {"rel_rmse": 0.3}}})
     write(P.validation_path(tmp_path, "cnn"), {"overall": {"force_x": {"rel_rmse": 0.2}}})
-    # unet is the better one step ahead, ridge over the rollout: ranked by the worse of the two
     for model, one, far in (("persistence", 0.2, 0.9), ("ridge", 0.1, 0.9), ("unet", 0.05, 1.8)):
         rollout = {"10": {"velocity": 0.5}, "100": {"velocity": far}}
         doc = {"overall": {"one_step": {"velocity": one}, "rollout_at": rollout}}
@@ -49,8 +48,8 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     assert lines[0] == "dozerlab: finished in 2 min 5 s"
     assert "best on held-out points: cnn, force x rel. RMSE 20 % (linear 30 %)" in lines[1]
     assert lines[2].endswith(
-        "best on held-out points: ridge, velocity error over persistence's "
-        "0.50x one step, 1.00x rollout 100"
+        "evolution velocity error over persistence's, held-out points: "
+        "ridge 0.50x one step, 1.00x rollout 100; unet 0.25x one step, 2.00x rollout 100"
     )
     assert lines[3].endswith(
         "ridge on 2 held-out points: height accuracy 85 %, "
