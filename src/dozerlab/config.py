@@ -147,10 +147,6 @@ def _numbers(doc: Any, sch: Mapping[str, Any]) -> Any:
     return doc
 
 
-#: The field holding each scenario's lowest bed level (m above the ground).
-LOWEST_LEVEL = {"hill": "base_height", "step": "low_height"}
-
-
 def check_cuts(config: Mapping[str, Any]) -> None:
     """Refuse cut depths that reach within a grain diameter of the ground anywhere along a path.
 
@@ -159,6 +155,8 @@ def check_cuts(config: Mapping[str, Any]) -> None:
     height) minus the depth; a path clamped to the ground crushes grains against it and the
     run diverges.
     """
+    from dozerlab.terrain import lowest_level  # here, not at the top: it imports numpy
+
     margin = 2.0 * config["bed"]["radius"]
     sweep = config["sweep"]
     cuts = [
@@ -166,22 +164,39 @@ def check_cuts(config: Mapping[str, Any]) -> None:
         for s in sweep["scenarios"]
         for i, d in enumerate(sweep["depths"])
     ]
-    for role in ("interpolation", "extrapolation"):
+    for role in ("interpolation", "extrapolation", "transfer"):
         cuts += [
             (f"sweep.{role}[{i}].depth", p["scenario"], p["depth"])
             for i, p in enumerate(sweep[role])
         ]
     for field, scenario, depth in cuts:
+        if scenario not in config["scenarios"]:
+            continue  # a job given the sweep, not the user's scenarios (check_scenario_names)
         shape = config["scenarios"][scenario]
-        low = LOWEST_LEVEL[scenario]
-        level = max(shape[low], shape["goal_height"])
+        low, lowest = lowest_level(scenario, config)
+        level = max(lowest, shape["goal_height"])
         if depth > level - margin:
             raise ConfigError(
                 f"config field '{field}': a {depth} m cut is deeper than the {scenario} bed allows: "
                 f"where the blade cuts, the bed is at least {level} m high "
-                f"(scenarios.{scenario}.{low} {shape[low]} m, goal_height {shape['goal_height']} m), and "
+                f"({low} {lowest} m, goal_height {shape['goal_height']} m), and "
                 f"the tip must stay a grain diameter (2 × bed.radius = {margin:.3g} m) above the ground "
                 f"(allowed: depth <= {level - margin:.4g} m)"
+            )
+
+
+def check_scenario_names(config: Mapping[str, Any]) -> None:
+    """Refuse a sweep point on a scenario the config's ``scenarios`` section does not define
+    (the presets always are), and a transfer point on a scenario of the training grid."""
+    sweep = config["sweep"]
+    named = [(f"sweep.scenarios[{i}]", s) for i, s in enumerate(sweep["scenarios"])]
+    for role in ("interpolation", "extrapolation", "transfer"):
+        named += [(f"sweep.{role}[{i}].scenario", p["scenario"]) for i, p in enumerate(sweep[role])]
+    for field, name in named:
+        if name not in config["scenarios"]:
+            raise ConfigError(
+                f"config field '{field}': scenario '{name}' is not defined (allowed: one of "
+                f"{sorted(config['scenarios'])}, or a scenario added under scenarios)"
             )
 
 
@@ -261,10 +276,17 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
         raise ConfigError("invalid configuration:\n  " + "\n  ".join(lines))
     # A job gets only the sections it reads (the rest are defaults): the sweep's checks apply
     # where a sweep is given, so a default sweep never fails against a user's bed.
+    # Terrain is checked against the bed it is built in, where the document gives it (the
+    # trajectory job reads a scenario's goal height only); build_bed checks it again.
+    if {"scenarios", "bed"} <= set(config or {}):
+        from dozerlab.terrain import check_scenarios
+
+        check_scenarios(doc)
     if "sweep" in (config or {}):
         from dozerlab.sweep import sweep_points  # here, not at the top: it imports numpy
 
         sweep_points(doc)
+        check_scenario_names(doc)
         check_cuts(doc)
     check_memory(doc, jobs=("simulate", "train") if "sweep" in (config or {}) else ("simulate",))
     # and the gap check where both bed and blade are given: the reduce job, given the blade but

@@ -22,7 +22,7 @@ the ``dozerlab.record`` tag): nothing is lost or logged twice. ``mlflow-start`` 
 that a killed workflow left.
 
 Ingestion also adds what a job does not know: the ``group`` of its sweep point (``training``,
-``interpolation`` or ``extrapolation``, from ``groups.json``) with ``held_out`` (``true`` or
+``interpolation``, ``extrapolation`` or ``transfer``, from ``groups.json``) with ``held_out`` (``true`` or
 ``false``) on runs tagged with a point, and it registers a logged model in the MLflow Model
 Registry under the name the job gave (:func:`register_model`).
 """
@@ -54,6 +54,7 @@ GROUP_OF_ROLE = {
     "train": "training",
     "interpolation": "interpolation",
     "extrapolation": "extrapolation",
+    "transfer": "transfer",
 }
 #: MLflow's limits on one ``log_batch`` call.
 PARAMS_PER_BATCH, METRICS_PER_BATCH = 100, 1000
@@ -239,7 +240,7 @@ def register_model(
 
 def write_groups(root: Path, parent: str, groups: Mapping[str, str]) -> None:
     """Record the group of each sweep point (``scenario/speed~S_depth~D``: ``training``,
-    ``interpolation`` or ``extrapolation``) for the ingestion of ``parent``'s records."""
+    ``interpolation``, ``extrapolation`` or ``transfer``) for the ingestion of ``parent``'s records."""
     (root / parent).mkdir(parents=True, exist_ok=True)
     _write_json(root / parent / GROUPS_FILE, dict(groups))
 

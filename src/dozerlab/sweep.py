@@ -20,7 +20,9 @@ import numpy as np
 
 from dozerlab.runtime import ConfigError, check_name
 
-ROLES = ("train", "interpolation", "extrapolation")
+ROLES = ("train", "interpolation", "extrapolation", "transfer")
+#: The roles of the points held out of training: the models are validated on these.
+HELD_OUT_ROLES = ROLES[1:]
 #: What a speed or depth looks like in a path.
 NUMBER_PATTERN = r"[0-9]+\.[0-9]+"
 #: What the Snakefile's wildcards accept as a speed or depth: any spelling, so that
@@ -100,7 +102,8 @@ def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
     """Every point of the validated config's sweep: the training grid, then the held-out points.
 
     Raises :class:`~dozerlab.runtime.ConfigError` when a held-out point is also a training point
-    (the models would see it in training) or is listed twice.
+    (the models would see it in training) or is listed twice, or a transfer point's scenario has
+    training points (it would not be unseen terrain).
     """
     sweep = cfg["sweep"]
     points = [
@@ -110,9 +113,15 @@ def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
         for d in sweep["depths"]
     ]
     seen = {p.key: "sweep grid" for p in points}
-    for role in ("interpolation", "extrapolation"):
+    for role in HELD_OUT_ROLES:
         for i, item in enumerate(sweep[role]):
             point = SweepPoint(item["scenario"], float(item["speed"]), float(item["depth"]), role)
+            if role == "transfer" and point.scenario in sweep["scenarios"]:
+                raise ConfigError(
+                    f"config field 'sweep.transfer[{i}].scenario': {point.scenario} is in "
+                    "sweep.scenarios, so the models train on it (allowed: a scenario of no "
+                    "training point)"
+                )
             if point.key in seen:
                 raise ConfigError(
                     f"config field 'sweep.{role}[{i}]': {point.scenario} {point.name} is already in the "
@@ -124,7 +133,7 @@ def sweep_points(cfg: Mapping[str, Any]) -> list[SweepPoint]:
 
 
 def by_role(points: Iterable[SweepPoint], role: str) -> list[SweepPoint]:
-    """The points of one role (``train``, ``interpolation`` or ``extrapolation``)."""
+    """The points of one role (``train``, ``interpolation``, ``extrapolation`` or ``transfer``)."""
     if role not in ROLES:
         raise ValueError(f"role must be one of {ROLES}, got '{role}'")
     return [p for p in points if p.role == role]

@@ -399,7 +399,8 @@ def start_parent_run(
 
 def point_groups(config: Mapping[str, Any]) -> dict[str, str]:
     """Each sweep point of the validated ``config`` (``scenario/speed~S_depth~D``) and its
-    group: ``training``, ``interpolation`` or ``extrapolation`` (the held-out ones)."""
+    group: ``training``, ``interpolation``, ``extrapolation`` or ``transfer`` (the held-out
+    ones; ``transfer`` on terrain of no training point)."""
     from dozerlab.sweep import sweep_points
 
     return {f"{p.scenario}/{p.name}": spool.GROUP_OF_ROLE[p.role] for p in sweep_points(config)}

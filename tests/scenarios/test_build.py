@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from dozerlab.config import load_config
+from dozerlab.runtime import ConfigError
 from dozerlab.scenarios.blade import add_blade, start_tip
 from dozerlab.scenarios.build import build_bed, make_world
 from dozerlab.scenarios.heightfield import height_field
@@ -108,5 +109,41 @@ def test_make_world_restores_the_bed_and_takes_the_blade(beds, small_config):
 
 
 def test_unknown_scenario_is_refused(small_config):
-    with pytest.raises(ValueError, match="one of"):
+    with pytest.raises(ConfigError, match="scenario 'dune' is not defined"):
         build_bed("dune", small_config, progress=False)
+
+
+#: A bed of the user's terrain, as small as a test builds in seconds: a ridge by a profile and a
+#: slope across the width by a heightmap (rows along x, columns along y).
+TERRAIN = {
+    "bed": {**SMALL["bed"], "length": 0.4, "width": 0.2},
+    "scenarios": {
+        "ridge": {
+            "kind": "profile",
+            "points": [[0.0, 0.05], [0.2, 0.16], [0.4, 0.05]],
+            "goal_height": 0.05,
+        },
+        "bank": {"kind": "heightmap", "goal_height": 0.05},
+    },
+}
+
+
+@pytest.fixture(scope="module")
+def terrain_beds(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("terrain")
+    np.save(folder / "bank.npy", np.array([[0.05, 0.16]] * 3))
+    doc = {**TERRAIN, "scenarios": {**TERRAIN["scenarios"]}}
+    doc["scenarios"]["bank"] = {**doc["scenarios"]["bank"], "file": str(folder / "bank.npy")}
+    cfg = load_config(doc)
+    return {s: build_bed(s, cfg, progress=False) for s in ("ridge", "bank")}
+
+
+def test_a_profile_and_a_heightmap_are_built_to_their_shapes(terrain_beds):
+    ridge, bank = terrain_beds["ridge"], terrain_beds["bank"]
+    assert ridge.scenario == "ridge" and 60 < ridge.count < 400 and 60 < bank.count < 400
+    _, h = height_field(ridge.positions, ridge.radii, ridge.length, ridge.width, (8, 4))
+    along = h.mean(axis=1)
+    assert along[3:5].mean() > 1.4 * max(along[0], along[-1])  # the ridge stands in the middle
+    _, h = height_field(bank.positions, bank.radii, bank.length, bank.width, (4, 4))
+    across = h.mean(axis=0)
+    assert across[-1] > 1.4 * across[0]  # the heightmap's slope runs across the width, to +y

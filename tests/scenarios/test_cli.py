@@ -76,7 +76,7 @@ def test_trajectory_command_writes_csv_and_plot(step_bed, tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["bed", "--scenario", "dune", "--out", "x.npz"], "--scenario must be one of"),
+        (["bed", "--scenario", "dune", "--out", "x.npz"], "--scenario 'dune' is not defined"),
         (
             ["trajectory", "--speed", "-1", "--depth", "0.1"],
             "argument --speed: -1.0 is less than the minimum of 0.01",

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dozerlab.runtime import OutputExistsError
+from dozerlab.runtime import ConfigError, OutputExistsError
 from dozerlab.scenarios.jobs import bed_job, trajectory_job
 from dozerlab.scenarios.trajectory import Trajectory, plan_trajectory
 
@@ -30,7 +30,8 @@ def test_trajectory_job_refuses_a_foreign_plot_before_writing(hill_bed, config, 
 
 def test_bed_job_refuses_before_settling(config, tmp_path):
     with pytest.raises(
-        ValueError, match=r"--scenario must be one of \['hill', 'step'\], got 'dune'"
+        ConfigError,
+        match=r"--scenario 'dune' is not defined \(allowed: one of \['hill', 'step', 'trench'\]",
     ):
         bed_job("dune", config, tmp_path / "b.npz")
     out = tmp_path / "b.npz"

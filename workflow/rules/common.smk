@@ -14,7 +14,7 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import ColorizingTextHandler, logger
 
-from dozerlab import cluster, console, headline, runtime, spool, tracking
+from dozerlab import cluster, console, headline, runtime, spool, terrain, tracking
 from dozerlab.config import load_config, read_yaml, schema
 from dozerlab import sweep as P
 from dozerlab.reduce import LOOP_FIELDS
@@ -37,7 +37,7 @@ except runtime.ConfigError as _exc:
     _files = " + ".join(map(str, workflow.configfiles)) or "the defaults"
     raise runtime.ConfigError(f"configuration {_files}: {_exc}") from None
 POINTS = P.sweep_points(config)
-HELD_OUT = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
+HELD_OUT = [p for role in P.HELD_OUT_ROLES for p in P.by_role(POINTS, role)]
 RESULTS = P.RESULTS
 if not config["mlflow"]["enabled"]:
     os.environ[tracking.ENABLED_ENV] = "0"  # the jobs' tracked_run reads this
@@ -56,7 +56,7 @@ os.environ[runtime.WORKFLOW_HOST_ENV] = socket.gethostname()
 # `canonical` refuses it with the canonical spelling or the reason (a tight pattern would give
 # Snakemake's MissingRuleException, which says neither).
 wildcard_constraints:
-    scenario="|".join(schema()["properties"]["sweep"]["properties"]["scenarios"]["items"]["enum"]),
+    scenario="|".join(sorted(config["scenarios"])),  # the presets and the config's own
     speed=P.WILDCARD_PATTERN,
     depth=P.WILDCARD_PATTERN,
     model="[a-z]+",
@@ -73,6 +73,11 @@ def config_json(*sections, scenario=None, fields=None):
     doc = {name: config[name] for name in sections}
     if scenario is not None and "scenarios" in doc:
         doc["scenarios"] = {scenario: config["scenarios"][scenario]}
+    if "sweep" in doc and "scenarios" not in doc:
+        # the sweep's own scenarios, which its check refuses unless defined (presets always are)
+        own = {p.scenario for p in POINTS} - set(terrain.PRESETS)
+        if own:
+            doc["scenarios"] = {s: config["scenarios"][s] for s in sorted(own)}
     for name, keep in (fields or {}).items():
         doc[name] = {k: v for k, v in doc[name].items() if k in keep}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
@@ -110,8 +115,7 @@ def flag(name, paths):
 
 def validated_models():
     """Models validated on the held-out points (none without held-out points)."""
-    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
-    return config["learn"]["models"] if held_out else []
+    return config["learn"]["models"] if HELD_OUT else []
 
 
 DYNAMICS_MODELS = schema()["properties"]["dynamics"]["properties"]["models"]["items"]["enum"]
@@ -127,8 +131,19 @@ def dynamics_config_json():
 
 def validated_dynamics():
     """Evolution models validated on the held-out points (none without held-out points)."""
-    held_out = P.by_role(POINTS, "interpolation") + P.by_role(POINTS, "extrapolation")
-    return config["dynamics"]["models"] if held_out else []
+    return config["dynamics"]["models"] if HELD_OUT else []
+
+
+def held_out_flags(input):
+    """A validation's ``--interpolation … --extrapolation … [--transfer …]`` of its rule's inputs
+    (no ``--transfer`` without transfer points: a sweep without them reruns no validation)."""
+    flags = [flag("interpolation", input.interpolation), flag("extrapolation", input.extrapolation)]
+    return " ".join(flags + ([flag("transfer", input.transfer)] if input.transfer else []))
+
+
+def heightmap_input(wildcards):
+    """The heightmap file of a scenario of kind heightmap (the bed reruns when it changes)."""
+    return [f] if (f := terrain.heightmap_file(wildcards.scenario, config)) else []
 
 
 def dynamics_input(wildcards):

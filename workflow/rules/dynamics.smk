@@ -27,6 +27,7 @@ rule validate_dynamics:
         model=str(P.dynamics_model_path(RESULTS, "{model}")),
         interpolation=fields_of("interpolation"),
         extrapolation=fields_of("extrapolation"),
+        transfer=fields_of("transfer"),
     output:
         json=str(P.dynamics_validation_path(RESULTS, "{model}")),
         plots=directory(str(P.dynamics_plots_path(RESULTS, "{model}"))),
@@ -39,9 +40,7 @@ rule validate_dynamics:
     threads: 1
     params:
         cfg=lambda wc: dynamics_config_json(),
-        held_out=lambda wc, input: " ".join(
-            [flag("interpolation", input.interpolation), flag("extrapolation", input.extrapolation)]
-        ),
+        held_out=lambda wc, input: held_out_flags(input),
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab validate-dynamics --model {input.model:q} {params.held_out}"
         " --out {output.json:q} --plots {output.plots:q} --config {params.cfg:q} --threads {threads} > {log:q} 2>&1"

@@ -24,6 +24,7 @@ rule validate:
         model=P.pattern("model"),
         interpolation=fields_of("interpolation"),
         extrapolation=fields_of("extrapolation"),
+        transfer=fields_of("transfer"),
     output:
         json=P.pattern("validation"),
         plots=directory(P.pattern("validation_plots")),
@@ -34,9 +35,7 @@ rule validate:
         **cluster.job_resources(config, "validate"),
     params:
         cfg=lambda wc: config_json("mlflow"),
-        held_out=lambda wc, input: " ".join(
-            [flag("interpolation", input.interpolation), flag("extrapolation", input.extrapolation)]
-        ),
+        held_out=lambda wc, input: held_out_flags(input),
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab validate --model {input.model:q} {params.held_out} --out {output.json:q}"
         " --plots {output.plots:q} --config {params.cfg:q} --threads {threads} > {log:q} 2>&1"

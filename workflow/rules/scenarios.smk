@@ -2,6 +2,8 @@
 
 
 rule bed:
+    input:
+        heightmap_input,
     output:
         bed=P.pattern("bed"),
         plot=report(P.pattern("bed_plot"), caption="../report/bed.rst", category="Beds"),

@@ -15,6 +15,7 @@ def add_held_out(p: argparse.ArgumentParser) -> None:
     for name, what in (
         ("interpolation", "held-out stores inside the training ranges"),
         ("extrapolation", "held-out stores outside them"),
+        ("transfer", "held-out stores on terrain of no training point (unseen terrain)"),
     ):
         p.add_argument(f"--{name}", nargs="*", default=[], metavar="F.zarr", help=what)
 
@@ -146,6 +147,7 @@ def _validate(args: argparse.Namespace) -> int:
         args.out,
         plots_dir=args.plots,
         config=config,
+        transfer=args.transfer,
     )
     print(result["summary"])
     return 0

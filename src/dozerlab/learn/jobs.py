@@ -225,14 +225,21 @@ def loop_dynamics_model(store: str | Path) -> str:
 
 
 def held_out_params(
-    model_dir: str | Path, interpolation: list[str | Path], extrapolation: list[str | Path]
+    model_dir: str | Path,
+    interpolation: list[str | Path],
+    extrapolation: list[str | Path],
+    transfer: list[str | Path] | tuple[()] = (),
 ) -> dict[str, Any]:
-    """A validation run's params: the model directory and the held-out stores."""
-    return {
+    """A validation run's params: the model directory and the held-out stores (the transfer
+    group's only where it has any)."""
+    params = {
         "model_dir": str(model_dir),
         "interpolation": ",".join(map(str, interpolation)),
         "extrapolation": ",".join(map(str, extrapolation)),
     }
+    if transfer:
+        params["transfer"] = ",".join(map(str, transfer))
+    return params
 
 
 def record_validation(
@@ -260,16 +267,17 @@ def validate_job(
     out: str | Path,
     plots_dir: str | Path | None = None,
     config: dict[str, Any] | None = None,
+    transfer: list[str | Path] | tuple[()] = (),
 ) -> dict[str, Any]:
-    """Validate a saved model on held-out stores: JSON at ``out``, plots (default: a folder
+    """Validate a saved model on held-out stores (``transfer``: those on unseen terrain): JSON at ``out``, plots (default: a folder
     named after ``out``, built whole: :data:`VALIDATION_PLOTS`) and an MLflow validate run.
     Both outputs are checked before any work; a failure leaves neither."""
     out = Path(out)
     pdir = Path(plots_dir) if plots_dir else out.with_suffix("")
     with job_outputs(("--out", out, VALIDATION_JSON), ("--plots", pdir, VALIDATION_PLOTS)):
         model, meta = pyfunc.load(model_dir)
-        groups = load_groups(interpolation, extrapolation)
-        params = held_out_params(model_dir, interpolation, extrapolation)
+        groups = load_groups(interpolation, extrapolation, transfer)
+        params = held_out_params(model_dir, interpolation, extrapolation, transfer)
         with tracking.job_run(
             config,
             tracking.run_name("validate", FORCE.family, model.kind),

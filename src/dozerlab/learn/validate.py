@@ -18,9 +18,9 @@ from dozerlab.learn.metrics import component_metrics
 from dozerlab.learn.models import ForceModel
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.runtime import DozerlabError
-from dozerlab.sweep import SweepPoint
+from dozerlab.sweep import HELD_OUT_ROLES, SweepPoint
 
-GROUPS = ("interpolation", "extrapolation")
+GROUPS = HELD_OUT_ROLES
 
 
 def predict_store(model: ForceModel, store: StoreData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -100,7 +100,8 @@ def validate(
     json_dir: str | Path | None = None,
     plots_at: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Validate on held-out stores grouped as ``{"interpolation": [...], "extrapolation": [...]}``.
+    """Validate on held-out stores grouped as ``{"interpolation": [...], "extrapolation": [...],
+    "transfer": [...]}`` (any may be missing).
 
     Writes plots into ``plots_dir`` when given; their paths in the result are those in
     ``plots_at`` (where that folder will be moved; default ``plots_dir``), relative to
@@ -109,7 +110,7 @@ def validate(
     """
     stores = [s for g in GROUPS for s in held_out.get(g, [])]
     if not stores:
-        raise ValueError("no held-out stores given (--interpolation and/or --extrapolation)")
+        raise ValueError("no held-out stores given (--interpolation, --extrapolation, --transfer)")
     check_grid(stores, model.grid, meta.get("bin_size"))
     check_no_leak(meta, stores)
     groups = {g: evaluate(model, held_out[g]) for g in GROUPS if held_out.get(g)}
@@ -176,10 +177,13 @@ def _make_plots(
 
 
 def load_groups(
-    interpolation: list[str | Path], extrapolation: list[str | Path]
+    interpolation: list[str | Path],
+    extrapolation: list[str | Path],
+    transfer: list[str | Path] | tuple[()] = (),
 ) -> dict[str, list[StoreData]]:
-    """Load held-out stores by group."""
+    """Load held-out stores by group (``transfer``: on unseen terrain)."""
     return {
         "interpolation": [load_store(p) for p in interpolation],
         "extrapolation": [load_store(p) for p in extrapolation],
+        "transfer": [load_store(p) for p in transfer],
     }

@@ -285,8 +285,7 @@ def _compare(
                 )
                 log.info("%s %s: %s", point.scenario, point.name, metrics)
         overall = {
-            role: _summary([e for e in entries if e["role"] == role])
-            for role in ("interpolation", "extrapolation")
+            role: _summary([e for e in entries if e["role"] == role]) for role in P.HELD_OUT_ROLES
         }
         overall["all"] = _summary(entries)
         summary = {

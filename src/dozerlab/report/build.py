@@ -19,7 +19,7 @@ from dozerlab import __version__
 from dozerlab.report import html
 from dozerlab.report.sections import Context, modules
 from dozerlab.runtime import ANIMATION, OutputExistsError, atomic_output, check_output, job_outputs
-from dozerlab.sweep import by_role, fmt_number, sweep_points
+from dozerlab.sweep import ROLES, by_role, fmt_number, sweep_points
 
 TITLE = "dozerlab report"
 
@@ -80,16 +80,27 @@ def _remove_unshown_animations(folder: Path, page: str) -> None:
         path.unlink()
 
 
+def _unseen(ctx: Context) -> list[str]:
+    """The scenarios of the transfer points, in their order."""
+    return list(dict.fromkeys(p.scenario for p in by_role(ctx.points, "transfer")))
+
+
 def _intro(ctx: Context) -> str:
     sweep, learn = ctx.cfg["sweep"], ctx.cfg["learn"]
-    n = {r: len(by_role(ctx.points, r)) for r in ("train", "interpolation", "extrapolation")}
+    n = {r: len(by_role(ctx.points, r)) for r in ROLES}
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     numbers = lambda xs: ", ".join(fmt_number(x) for x in xs)  # noqa: E731
     text = html.paragraph(
         f"dozerlab {__version__}, built {when}. Scenarios {', '.join(sweep['scenarios'])}; "
         f"blade speeds {numbers(sweep['speeds'])} m/s × cut depths {numbers(sweep['depths'])} m: "
         f"{n['train']} training points; held out of training, {n['interpolation']} interpolation "
-        f"and {n['extrapolation']} extrapolation points. Models: {', '.join(learn['models'])}."
+        f"and {n['extrapolation']} extrapolation points"
+        + (
+            f", and {n['transfer']} on unseen terrain ({', '.join(_unseen(ctx))})"
+            if n["transfer"]
+            else ""
+        )
+        + f". Models: {', '.join(learn['models'])}."
     )
     if ctx.cfg.get("report", {}).get("smoke_test"):
         text += html.note(

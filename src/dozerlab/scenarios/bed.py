@@ -19,9 +19,11 @@ import numpy as np
 
 from dozerlab import __version__
 from dozerlab.integrity import DamagedFileError, read_npz, require_finite
-from dozerlab.runtime import DozerlabError, OutputKind, atomic_output
+from dozerlab.runtime import DozerlabError, OutputKind, atomic_output, check_name
+from dozerlab.terrain import PRESETS
 
-SCENARIOS: tuple[str, ...] = ("hill", "step")
+#: The built-in scenarios (presets); a config may define more (:mod:`dozerlab.terrain`).
+SCENARIOS: tuple[str, ...] = PRESETS
 
 _ARRAYS = (
     "positions",
@@ -88,8 +90,7 @@ class Bed:
     info: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise ValueError(f"scenario must be one of {list(SCENARIOS)}, got {self.scenario!r}")
+        check_name(self.scenario, "Bed.scenario")
         n = len(self.radii)
         for name in ("positions", "velocities", "angular_velocities"):
             arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64)

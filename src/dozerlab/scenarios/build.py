@@ -5,8 +5,9 @@ creating layers of particles of radius r·(1 ± radius_dispersion) (uniform), ea
 spot of its cell of a grid across the strip, a small gap above the local surface and falling
 at ``bed.emitter_drop_speed`` (impacts are inelastic). The strip lingers where the bed should be
 high: it lays particles in the cells that hold fewer than ``packing_fraction`` × the target
-volume above them (scenario height profile h(x) × cell area) and moves on one row once its rear
-row holds its share, so the volume laid per unit length follows h(x), and material that rolls
+volume above them (the scenario's target height h(x, y) at the cell's centre × cell area,
+:func:`dozerlab.terrain.target_height`: a preset, a profile or a heightmap) and moves on one row
+once its rear row holds its share, so the volume laid per cell follows h(x, y), and material that rolls
 ahead of the strip is not laid again. The particles then settle until the mean kinetic energy
 per particle falls below ``bed.settle_kinetic_energy``; slopes steeper than the pile stands
 slump to its angle of repose. The build is deterministic for ``seed``.
@@ -28,7 +29,8 @@ import numpy as np
 
 from dozerlab.ndem import World
 from dozerlab.runtime import DozerlabError
-from dozerlab.scenarios.bed import SCENARIOS, Bed
+from dozerlab.scenarios.bed import Bed
+from dozerlab.terrain import check_terrain, target_height
 
 log = logging.getLogger(__name__)
 #: Solver steps between the log lines of a bed build (1 s simulated at the default dt).
@@ -45,31 +47,6 @@ ROW_PATIENCE = 2.0
 #: Steps a new particle takes to come to rest on the surface after its fall (the inelastic
 #: impact itself and the contacts around it settling).
 LANDING_STEPS = 5
-
-
-def target_profile(scenario: str, config: dict[str, Any], x: np.ndarray) -> np.ndarray:
-    """The scenario's target bed height (m) at positions ``x`` (m), shape of ``x``."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"scenario must be one of {list(SCENARIOS)}, got {scenario!r}")
-    length = float(config["bed"]["length"])
-    s = config["scenarios"][scenario]
-    x = np.asarray(x, dtype=np.float64)
-    if scenario == "hill":
-        if s["peak_height"] <= s["base_height"]:
-            raise ValueError(
-                f"scenarios.hill.peak_height ({s['peak_height']}) must be > base_height "
-                f"({s['base_height']})"
-            )
-        u = np.clip((x - s["center"] * length) / (s["half_width"] * length), -1.0, 1.0)
-        return (
-            s["base_height"] + (s["peak_height"] - s["base_height"]) * np.cos(0.5 * np.pi * u) ** 2
-        )
-    if s["high_height"] <= s["low_height"]:
-        raise ValueError(
-            f"scenarios.step.high_height ({s['high_height']}) must be > low_height "
-            f"({s['low_height']})"
-        )
-    return np.where(x < s["edge"] * length, float(s["high_height"]), float(s["low_height"]))
 
 
 def add_walls(world: World, length: float, width: float, friction: float) -> dict[str, int]:
@@ -134,7 +111,7 @@ class _Emitter:
 
     The ground is divided into rows along x of ``cell_x`` and columns along y of ``cell_y``, both
     wider than the largest particle. Each cell should end up holding ``packing_fraction`` × its
-    target volume (target height × area) in particles. The strip covers ``rows`` rows from row
+    target volume (target height at its centre × area) in particles. The strip covers ``rows`` rows from row
     ``rear``; a layer puts one particle of random radius at a random spot in each of its cells
     that holds fewer than that (cells wider than a particle keep layer neighbours apart). The
     count is of the particles there now, so what rolls ahead of the strip is not laid twice.
@@ -143,6 +120,7 @@ class _Emitter:
     """
 
     def __init__(self, scenario: str, config: dict[str, Any], rng: np.random.Generator):
+        check_terrain(scenario, config)
         b = config["bed"]
         self.length, self.width = float(b["length"]), float(b["width"])
         self.r, self.spread, self.gap = (
@@ -160,11 +138,16 @@ class _Emitter:
         self.n_rows, self.columns = int(self.length // cell), int(self.width // cell)
         self.cell_x, self.cell_y = self.length / self.n_rows, self.width / self.columns
         self.rows = min(STRIP_ROWS, self.n_rows)
-        height = target_profile(scenario, config, (np.arange(self.n_rows) + 0.5) * self.cell_x)
+        height = target_height(
+            scenario,
+            config,
+            (np.arange(self.n_rows)[:, None] + 0.5) * self.cell_x,
+            (np.arange(self.columns)[None, :] + 0.5) * self.cell_y - 0.5 * self.width,
+        )
         mean_volume = 4.0 / 3.0 * np.pi * self.r**3 * (1.0 + self.spread**2)
-        #: Particles each cell of a row should hold (n_rows,).
+        #: Particles each cell should hold (n_rows, columns).
         self.quota = float(b["packing_fraction"]) * self.cell_x * self.cell_y * height / mean_volume
-        self.estimate = round(self.quota.sum() * self.columns)
+        self.estimate = round(self.quota.sum())
         if self.estimate < 1:
             raise ValueError("the scenario's bed heights are too low to hold a single particle")
         self.rear, self.tries = 0, 0
@@ -208,13 +191,13 @@ class _Emitter:
             self.columns - 1,
         )
         np.add.at(counts, (row[inside] - self.rear, col), 1.0)
-        if counts[0].sum() >= self.quota[self.rear] * self.columns or self.tries >= ROW_PATIENCE * (
-            self.quota[self.rear] + 1.0
+        if counts[0].sum() >= self.quota[self.rear].sum() or self.tries >= ROW_PATIENCE * (
+            self.quota[self.rear].max() + 1.0
         ):
             self.rear, self.tries = self.rear + 1, 0
             return np.zeros((0, 3)), np.zeros(0)
         self.tries += 1
-        ix, iy = np.nonzero(counts < self.quota[self.rear : last, None])
+        ix, iy = np.nonzero(counts < self.quota[self.rear : last])
         ix = ix + self.rear
         n = ix.size
         radius = self.r * (1.0 + self.spread * rng.uniform(-1.0, 1.0, n))
@@ -245,12 +228,14 @@ class _Emitter:
 
 
 def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -> Bed:
-    """Build and settle the bed of ``scenario`` (``hill`` or ``step``) from a validated config.
+    """Build and settle the bed of ``scenario`` (a preset or a scenario the config's ``scenarios``
+    defines, :mod:`dozerlab.terrain`) from a validated config.
 
     Uses ``bed.dt`` and ``bed.iterations`` for the solver, the ``solver`` section's gravity,
     damping and overlap limit, ``material`` and ``seed``. The strip makes one pass; then the bed
     settles until the mean kinetic energy per particle is below ``bed.settle_kinetic_energy``.
-    Raises DozerlabError if it has not settled ``bed.max_settle_time`` simulated seconds after the
+    Raises ConfigError if the terrain cannot be built (:func:`dozerlab.terrain.check_terrain`),
+    DozerlabError if it has not settled ``bed.max_settle_time`` simulated seconds after the
     last layer, or a particle left the domain.
     """
     from tqdm import tqdm

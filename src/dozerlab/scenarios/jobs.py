@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from dozerlab.runtime import job_outputs
-from dozerlab.scenarios.bed import BED_FILE, SCENARIOS, Bed
+from dozerlab.runtime import ConfigError, job_outputs
+from dozerlab.scenarios.bed import BED_FILE, Bed
 from dozerlab.scenarios.build import build_bed
 from dozerlab.scenarios.plots import BED_PLOT, TRAJECTORY_PLOT, plot_bed, plot_trajectory
 from dozerlab.scenarios.trajectory import TRAJECTORY_FILE, Trajectory, plan_trajectory
@@ -25,8 +25,11 @@ def bed_job(
     """Build and settle ``scenario``'s bed, save it at ``out`` (.npz) and its plot at ``plot``,
     inside an MLflow run tagged with the scenario (particle count, settle time, kinetic energy
     per particle, wall time and steps as metrics). ``config`` is a validated config."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"--scenario must be one of {list(SCENARIOS)}, got {scenario!r}")
+    if scenario not in config["scenarios"]:
+        raise ConfigError(
+            f"--scenario {scenario!r} is not defined (allowed: one of {sorted(config['scenarios'])}, "
+            "or a scenario added under the config's scenarios)"
+        )
     params = {k: config[k] for k in ("bed", "material", "solver", "seed")}
     params["scenario"] = config["scenarios"][scenario]
     with (

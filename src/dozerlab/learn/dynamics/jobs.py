@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from dozerlab.learn.data import StoreData, check_grid, load_store
+from dozerlab.learn.data import StoreData, check_grid
 from dozerlab.learn.dynamics import plots, pyfunc
 from dozerlab.learn.dynamics.metrics import combine, evaluate_store, public
 from dozerlab.learn.dynamics.models import DynamicsModel
@@ -16,7 +16,7 @@ from dozerlab.learn.dynamics.train import train_dynamics
 from dozerlab.learn.dynamics.windows import frame_of
 from dozerlab.learn.jobs import Family, held_out_params, record_validation, train_job
 from dozerlab.learn.train import TrainResult
-from dozerlab.learn.validate import GROUPS, check_no_leak
+from dozerlab.learn.validate import GROUPS, check_no_leak, load_groups
 from dozerlab.runtime import OutputKind, atomic_output, job_outputs, json_with, marked_folder
 from dozerlab.tracking import job_run, run_name
 
@@ -78,7 +78,7 @@ def validate_dynamics(
     other sampling frames."""
     stores = [s for g in GROUPS for s in held_out.get(g, [])]
     if not stores:
-        raise ValueError("no held-out stores given (--interpolation and/or --extrapolation)")
+        raise ValueError("no held-out stores given (--interpolation, --extrapolation, --transfer)")
     check_grid(stores, model.grid)
     frame_of(stores, (model.row_dt, model.bin_size))
     check_no_leak(meta, stores)
@@ -164,33 +164,33 @@ def validate_dynamics_job(
     out: str | Path,
     config: dict[str, Any],
     plots_dir: str | Path | None = None,
+    transfer: list[str | Path] | tuple[()] = (),
 ) -> dict[str, Any]:
-    """Validate a saved evolution model on held-out stores: JSON at ``out``, plots (default:
+    """Validate a saved evolution model on held-out stores (``transfer``: those on unseen
+    terrain): JSON at ``out``, plots (default:
     ``plots/{name}`` beside it, as :func:`dozerlab.sweep.dynamics_plots_path`; the folder named
     after the JSON is the model's, built whole: :data:`DYNAMICS_PLOTS`), and an MLflow
     validate_dynamics run. Both outputs are checked before any work; a failure leaves neither."""
     out = Path(out)
     pdir = Path(plots_dir) if plots_dir else out.parent / "plots" / out.stem
     with job_outputs(("--out", out, VALIDATION_JSON), ("--plots", pdir, DYNAMICS_PLOTS)):
-        return _validate_dynamics(model_dir, interpolation, extrapolation, out, config, pdir)
+        held = load_groups(interpolation, extrapolation, transfer)
+        params = held_out_params(model_dir, interpolation, extrapolation, transfer)
+        return _validate_dynamics(model_dir, held, params, out, config, pdir)
 
 
 def _validate_dynamics(
     model_dir: str | Path,
-    interpolation: list[str | Path],
-    extrapolation: list[str | Path],
+    held: dict[str, list[StoreData]],
+    held_params: dict[str, Any],
     out: Path,
     config: dict[str, Any],
     pdir: Path,
 ) -> dict[str, Any]:
     model, meta = pyfunc.load(model_dir)
-    held = {
-        "interpolation": [load_store(p) for p in interpolation],
-        "extrapolation": [load_store(p) for p in extrapolation],
-    }
     dyn = config["dynamics"]
     params = {
-        **held_out_params(model_dir, interpolation, extrapolation),
+        **held_params,
         "rollout_steps": dyn["rollout_steps"],
         "rollout_starts": dyn["rollout_starts"],
     }

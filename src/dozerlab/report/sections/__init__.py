@@ -28,10 +28,16 @@ from types import ModuleType
 from typing import Any
 
 from dozerlab.report import html
-from dozerlab.sweep import SweepPoint
+from dozerlab.sweep import HELD_OUT_ROLES, SweepPoint
 
 #: The held-out groups of a validation document, in the order the report shows them.
-GROUPS = ("interpolation", "extrapolation")
+GROUPS = HELD_OUT_ROLES
+#: What the report calls each group (``transfer``: the points on terrain of no training point).
+GROUP_LABELS = {
+    "interpolation": "interpolation",
+    "extrapolation": "extrapolation",
+    "transfer": "unseen terrain",
+}
 
 
 @dataclass(frozen=True)
@@ -120,7 +126,7 @@ def group_rows(
     """A table row per model and held-out group it was validated on: the model, the group, then
     ``cells(model, group, overall)`` of the group's overall figures."""
     return [
-        [m, g, *cells(m, g, doc["groups"][g]["overall"])]
+        [m, GROUP_LABELS[g], *cells(m, g, doc["groups"][g]["overall"])]
         for m, doc in docs.items()
         for g in GROUPS
         if g in doc["groups"]

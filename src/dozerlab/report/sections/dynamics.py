@@ -12,6 +12,7 @@ import numpy as np
 
 from dozerlab.report import html
 from dozerlab.report.sections import (
+    GROUP_LABELS,
     GROUPS,
     Comparison,
     Context,
@@ -157,7 +158,7 @@ def _verdict(docs: dict[str, dict[str, Any]]) -> str:
         mass = docs[best]["groups"][g]["overall"]["mass"]["max_abs_error"]
         ok = max(r) <= RATIO_TARGET and mass <= MASS_TARGET
         lines.append(
-            f"{g}: {best}, velocity error {r[0]:.2f}× persistence's one step and {r[1]:.2f}× at "
+            f"{GROUP_LABELS[g]}: {best}, velocity error {r[0]:.2f}× persistence's one step and {r[1]:.2f}× at "
             f"50 steps, mass within {html.percent(mass)} "
             f"({'meets' if ok else 'misses'} the targets ≤ {RATIO_TARGET}× and "
             f"±{html.percent(MASS_TARGET, 0)})"
@@ -171,8 +172,8 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         facts.append(f"training took {doc['train_seconds']:.0f} s")
     rows: list[list[Any]] = []
     for g, data in doc["groups"].items():
-        rows.append([html.Group(f"{g}: {len(data['points'])} point(s)")])
-        rows += [[_point(p), g, *_cells(p)] for p in data["points"]]
+        rows.append([html.Group(f"{GROUP_LABELS[g]}: {len(data['points'])} point(s)")])
+        rows += [[_point(p), GROUP_LABELS[g], *_cells(p)] for p in data["points"]]
     plots = doc.get("plots") or {}
     images = [(plots.get("rollout"), f"{model}: errors and mass along the rollouts")]
     images += [
@@ -205,7 +206,7 @@ def rollout_chart(docs: dict[str, dict[str, Any]]) -> Any:
                 if g in d["groups"]:
                     curve = d["groups"][g]["overall"]["rollout"]["velocity"]
                     ax.plot(np.arange(1, len(curve) + 1), curve, label=m)
-            ax.set(title=g, xlabel="rollout step", yscale="log")
+            ax.set(title=GROUP_LABELS[g], xlabel="rollout step", yscale="log")
             ax.grid(alpha=0.3)
         axes[0].set_ylabel("velocity error (mass-weighted)")
         axes[0].legend()

@@ -12,6 +12,7 @@ import numpy as np
 
 from dozerlab.report import html
 from dozerlab.report.sections import (
+    GROUP_LABELS,
     GROUPS,
     Comparison,
     Context,
@@ -84,7 +85,7 @@ def verdict(ctx: Context) -> str | None:
     ranked = sorted(scores, key=lambda m: float(np.mean(list(scores[m].values()))))
     best = scores[ranked[0]]
     text = f"{ranked[0]} predicts the draft force best: force_x relative RMSE " + " and ".join(
-        f"{html.percent(v)} on the {g}" for g, v in best.items()
+        f"{html.percent(v)} on the {GROUP_LABELS[g]}" for g, v in best.items()
     )
     text += " points"
     if len(ranked) > 1:
@@ -122,7 +123,7 @@ def _best(results: dict[str, dict[str, Any]]) -> str:
         scores = {m: v for m, v in scores.items() if math.isfinite(v)}
         if scores:
             m = min(scores, key=scores.__getitem__)
-            best.append(f"on the {g} points {m}, {html.percent(scores[m])}")
+            best.append(f"on the {GROUP_LABELS[g]} points {m}, {html.percent(scores[m])}")
     return "Lowest force_x relative RMSE: " + "; ".join(best) + "." if best else ""
 
 
@@ -141,10 +142,10 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
     rows: list[list[Any]] = []
     for g, data in doc["groups"].items():
         n = len(data["points"])
-        rows.append([html.Group(f"{g}: {n} point{'s' if n != 1 else ''}")])
+        rows.append([html.Group(f"{GROUP_LABELS[g]}: {n} point{'s' if n != 1 else ''}")])
         if n > 1:
-            rows.append(["all", g, *_cells(data["overall"])])
-        rows += [[_point(p), g, *_cells(p["metrics"])] for p in data["points"]]
+            rows.append(["all", GROUP_LABELS[g], *_cells(data["overall"])])
+        rows += [[_point(p), GROUP_LABELS[g], *_cells(p["metrics"])] for p in data["points"]]
     plots = doc.get("plots") or {}
     images = [
         (plots.get("loss"), f"{model}: training and validation loss"),
@@ -194,7 +195,9 @@ def error_chart(results: dict[str, dict[str, Any]]) -> Any:
                     else np.nan
                     for d in results.values()
                 ]
-                bars = ax.bar(x + (k - (len(groups) - 1) / 2) * width, values, width, label=g)
+                bars = ax.bar(
+                    x + (k - (len(groups) - 1) / 2) * width, values, width, label=GROUP_LABELS[g]
+                )
                 ax.bar_label(
                     bars, labels=[f"{v:.1f}" if np.isfinite(v) else "" for v in values], fontsize=10
                 )

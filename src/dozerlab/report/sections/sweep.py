@@ -18,13 +18,19 @@ QUESTION = "What the sweep covered"
 
 #: Marker of each role on the sweep map, its edge colour and width (pt), and the markers' area
 #: (pt²).
-MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s"}
-EDGES = {"train": ("k", 0.8), "interpolation": ("crimson", 2.2), "extrapolation": ("crimson", 2.2)}
+MARKERS = {"train": "o", "interpolation": "D", "extrapolation": "s", "transfer": "^"}
+EDGES = {
+    "train": ("k", 0.8),
+    "interpolation": ("crimson", 2.2),
+    "extrapolation": ("crimson", 2.2),
+    "transfer": ("crimson", 2.2),
+}
 MARKER_AREA = 170
 LABELS = {
     "train": "training",
     "interpolation": "held out, interpolation",
     "extrapolation": "held out, extrapolation",
+    "transfer": "held out, unseen terrain",
 }
 
 
@@ -114,7 +120,8 @@ def render(ctx: Context) -> str | None:
         html.figure(
             sweep_map(summaries),
             "Mean blade force magnitude |F| over each run, by blade speed and cut depth; the "
-            "held-out points (diamonds, squares, red edges) are never seen in training. Hollow "
+            "held-out points (diamonds, squares, triangles on unseen terrain, red edges) are never "
+            "seen in training. Hollow "
             "grey: not simulated yet.",
         ),
         html.table(COLUMNS, [_row(s) for s in summaries]),
