@@ -183,6 +183,7 @@ def test_runs_of_a_sweep_point_say_its_group(mlflow_store, tmp_path, monkeypatch
         "depths": [0.04],
         "interpolation": [{"scenario": "hill", "speed": 1.25, "depth": 0.04}],
         "extrapolation": [{"scenario": "hill", "speed": 0.75, "depth": 0.04}],
+        "transfer": [{"scenario": "trench", "speed": 1.0, "depth": 0.04}],
     }
     parent = tracking.start_parent_run("dozerlab", "sweep/x", config=load_config({"sweep": sweep}))
     monkeypatch.setenv(tracking.PARENT_ENV, parent)
@@ -190,6 +191,9 @@ def test_runs_of_a_sweep_point_say_its_group(mlflow_store, tmp_path, monkeypatch
         point = {"scenario": "hill", "speed": speed, "depth": 0.04}
         with tracking.tracked_run(f"simulate {speed}", rule="simulate", tags=point):
             pass
+    point = {"scenario": "trench", "speed": 1.0, "depth": 0.04}
+    with tracking.tracked_run("simulate trench", rule="simulate", tags=point):
+        pass
     with tracking.tracked_run("compare ridge", rule="compare_reduced"):
         pass
     tracking.end_parent_run(parent)
@@ -201,6 +205,7 @@ def test_runs_of_a_sweep_point_say_its_group(mlflow_store, tmp_path, monkeypatch
         "simulate 1.0": ("training", "false"),
         "simulate 1.25": ("interpolation", "true"),
         "simulate 0.75": ("extrapolation", "true"),
+        "simulate trench": ("transfer", "true"),
         "simulate 2.0": (None, None),  # not a point of this sweep
         "compare ridge": (None, None),
     }

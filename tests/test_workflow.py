@@ -563,3 +563,37 @@ def test_invalid_config_is_refused_before_any_job(tmp_path, text, message):
     assert done.returncode != 0
     assert re.search(message, done.stderr), done.stderr[-3000:]
     assert not (tmp_path / "results").exists() and not (tmp_path / "mlflow.db").exists()
+
+
+def test_transfer_points_on_the_users_terrain_are_simulated_validated_and_reduced(tmp_path):
+    """A profile and a heightmap written into the config: a transfer point on each is built
+    (the heightmap file an input of its bed), validated by every model as unseen terrain and
+    run by every reduced model, in a dry run."""
+    quick = yaml.safe_load(QUICK.read_text())
+    np.save(tmp_path / "site.npy", np.array([[0.4, 0.5], [0.5, 0.6], [0.4, 0.5]]))
+    quick["scenarios"]["ramp"] = {"kind": "profile", "points": [[0.0, 0.4], [2.0, 0.6]]}
+    quick["scenarios"]["site"] = {"kind": "heightmap", "file": "site.npy"}
+    quick["sweep"]["transfer"] = [
+        {"scenario": "ramp", "speed": 1.0, "depth": 0.06},
+        {"scenario": "site", "speed": 1.0, "depth": 0.06},
+    ]
+    cfg = tmp_path / "terrain.yaml"
+    cfg.write_text(yaml.safe_dump(quick))
+    done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = done.stdout
+    beds = re.findall(r"dozerlab bed --scenario (\w+)", out)
+    assert sorted(beds) == ["hill", "ramp", "site"]
+    assert re.search(r"rule bed:\n\s+input: site\.npy\n", out)
+    for name in ("ramp", "site"):
+        assert f"--out 'results/fields/{name}/speed~1.0_depth~0.06.zarr'" in out
+    validations = re.findall(r"dozerlab validate(?:-dynamics)? .*", out)
+    assert len(validations) == len(MODELS) + len(DYNAMICS)
+    assert all(
+        "--transfer 'results/fields/ramp/speed~1.0_depth~0.06.zarr' "
+        "'results/fields/site/speed~1.0_depth~0.06.zarr'" in v
+        for v in validations
+    )
+    reduced = re.findall(r"dozerlab reduce .*--out 'results/reduced/(\w+)/(\w+)/", out)
+    assert {s for _, s in reduced} >= {"ramp", "site"}
+    assert len([m for m, s in reduced if s in ("ramp", "site")]) == 2 * len(REDUCED)

@@ -15,7 +15,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "python -m dozerlab bed --scenario hill --config config/quick.yaml \\\n"
         "      --out results/beds/hill.npz --plot results/beds/hill.png",
     )
-    p.add_argument("--scenario", required=True, help="a preset (hill, step, trench) or a scenario the config defines")
+    p.add_argument(
+        "--scenario",
+        required=True,
+        help="a preset (hill, step, trench) or a scenario the config defines",
+    )
     add_config(p)
     p.add_argument("--out", required=True, help="bed file to write (.npz)")
     p.add_argument("--plot", default=None, help="also write a PNG of the bed and its settle log")

@@ -57,3 +57,18 @@ def test_best_model_per_group_and_a_row_per_model_and_group(tmp_path):
         "reached 10 % on its training data."
     )
     assert "closed-form fit (no epochs)" in text.split('id="validation-mlp"')[0]
+
+
+def test_the_unseen_terrain_group_has_its_rows_and_its_best_model(tmp_path):
+    (tmp_path / "validation").mkdir()
+    validation_json(tmp_path, "linear")
+    path = P.validation_path(tmp_path, "linear")
+    doc = json.loads(path.read_text())
+    doc["groups"]["transfer"] = json.loads(json.dumps(doc["groups"]["extrapolation"]))
+    doc["groups"]["transfer"]["overall"]["force_x"]["rel_rmse"] = 0.2
+    path.write_text(json.dumps(doc))
+    text = models.render(report_context(CFG, tmp_path))
+    assert "on the unseen terrain points linear, 20.0 %" in text
+    summary = text.split("<details")[0]
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", r) for r in re.findall(r"<tr>(.*?)</tr>", summary)]
+    assert [r[:2] for r in rows if r][-1] == ["linear", "unseen terrain"]

@@ -10,7 +10,7 @@ import math
 from typing import Any
 
 from dozerlab.report import html
-from dozerlab.report.sections import Context
+from dozerlab.report.sections import GROUP_LABELS, Context
 from dozerlab.sweep import fmt_number, reduced_comparison_path
 
 TITLE = "Reduced simulation against NDEM"
@@ -46,7 +46,7 @@ COLUMNS = [
 def _row(p: dict[str, Any]) -> list[Any]:
     return [
         f"{p['scenario']} {fmt_number(p['speed'])} m/s, {fmt_number(p['depth'])} m",
-        p["role"],
+        GROUP_LABELS.get(p["role"], p["role"]),
         p["height_accuracy"],
         p["force_x_rel_rmse"],
         p["velocity_rel_l2"],
