@@ -32,7 +32,8 @@ field (`config/quick.yaml` is the first-look sweep). Every field has a default, 
 (or none) is valid. The configuration is validated before any job runs: a bad value is refused
 with its field name and allowed range. Beyond single values the check refuses a speed or depth
 listed twice, a held-out point that is also a training point, a cut that would take the blade tip
-within a grain diameter of the ground, and bins or steps whose jobs would need more memory than
+within a grain diameter of the ground, terrain that cannot be built (docs/physics.md, "Beds"), a
+transfer point on a training scenario, and bins or steps whose jobs would need more memory than
 the machine has. Numbers may be written `1e9`. `python -m dozerlab config FILE` prints a config
 complete with its defaults, or the error.
 
@@ -140,6 +141,10 @@ def _section(key: str, spec: dict[str, Any], out: list[str]) -> None:
         out.extend(rows)
     for sub_key, sub in nested:
         _section(sub_key, sub, out)
+    extra = spec.get("additionalProperties")
+    if isinstance(extra, dict) and "properties" in extra:
+        # a mapping of user-named entries (scenarios.<name>): one section for all of them
+        _section(f"{key}.<name>", extra, out)
 
 
 def render(schema: dict[str, Any]) -> str:
