@@ -42,3 +42,22 @@ def test_one_row_per_point_and_the_map_with_its_colour_scale(tmp_path):
     assert handle.get_markerfacecolor() != "0.85"  # not the grey of a point not built
     assert round(handle.get_markersize() ** 2) == sweep.MARKER_AREA == drawn.get_sizes()[0]
     assert handle.get_markeredgewidth() == drawn.get_linewidths()[0]
+
+
+def test_a_scenario_of_transfer_points_only_has_its_panel_marked_unseen():
+    cfg = load_config(
+        {
+            **SMALL_SWEEP,
+            "sweep": {
+                **SMALL_SWEEP["sweep"],
+                "transfer": [{"scenario": "trench", "speed": 1.0, "depth": 0.1}],
+            },
+        }
+    )
+    summaries = [PointSummary(p) for p in P.sweep_points(cfg)]
+    summaries[0].mean_force = summaries[-1].mean_force = 1500.0
+    fig = sweep.sweep_map(summaries)
+    assert [ax.get_title() for ax in fig.axes[:2]] == ["hill", "trench (unseen terrain)"]
+    assert fig.axes[1].collections[0].get_paths()  # the triangle of the transfer point
+    row = sweep._row(summaries[-1])
+    assert row[:2] == ["trench", "held out, unseen terrain"]

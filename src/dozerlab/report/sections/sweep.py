@@ -147,6 +147,12 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
     from matplotlib.lines import Line2D
 
     scenarios = list(dict.fromkeys(s.point.scenario for s in summaries))
+    # a scenario of transfer points only: terrain no model trained on
+    unseen = {
+        c
+        for c in scenarios
+        if all(s.point.role == "transfer" for s in summaries if s.point.scenario == c)
+    }
     forces = [s.mean_force / 1000 for s in summaries if s.mean_force is not None]
     norm = Normalize(min(forces), max(forces) if max(forces) > min(forces) else min(forces) + 1)
     speeds = [s.point.speed for s in summaries]
@@ -187,7 +193,7 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                 xlim=(min(speeds) - pad_v, max(speeds) + pad_v),
                 ylim=(min(depths) - pad_d, max(depths) + 1.6 * pad_d),
                 xlabel="blade speed (m/s)",
-                title=f"{scenario}",
+                title=scenario + (" (unseen terrain)" if scenario in unseen else ""),
             )
             ax.grid(alpha=0.3)
         axes[0].set_ylabel("cut depth (m)")
