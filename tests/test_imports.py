@@ -14,6 +14,7 @@ LAYERS = ("shared", "ndem", "scenarios", "fields", "learn", "reduce", "report", 
 SHARED = {
     "__init__",
     "sweep",
+    "terrain",
     "config",
     "runtime",
     "tracking",

@@ -185,6 +185,13 @@ def check_cuts(config: Mapping[str, Any]) -> None:
             )
 
 
+def height_bound() -> float:
+    """The highest ground height a bed may have (m), the top of the bed's box: the schema's
+    bound on every preset height."""
+    hill = schema()["properties"]["scenarios"]["properties"]["hill"]["properties"]
+    return float(hill["peak_height"]["maximum"])
+
+
 def check_scenario_names(config: Mapping[str, Any]) -> None:
     """Refuse a sweep point on a scenario the config's ``scenarios`` section does not define
     (the presets always are), and a transfer point on a scenario of the training grid."""
@@ -281,7 +288,7 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     if {"scenarios", "bed"} <= set(config or {}):
         from dozerlab.terrain import check_scenarios
 
-        check_scenarios(doc)
+        check_scenarios(doc, height_bound())
     if "sweep" in (config or {}):
         from dozerlab.sweep import sweep_points  # here, not at the top: it imports numpy
 

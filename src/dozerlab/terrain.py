@@ -37,17 +37,6 @@ KINDS: tuple[str, ...] = ("profile", "heightmap")
 PRESET_LOWEST = {"hill": "base_height", "step": "low_height", "trench": "bottom_height"}
 
 
-def box_top() -> float:
-    """The highest ground height a bed may have (m): the schema's bound on every preset height."""
-    from dozerlab.config import schema
-
-    return float(
-        schema()["properties"]["scenarios"]["properties"]["hill"]["properties"]["peak_height"][
-            "maximum"
-        ]
-    )
-
-
 def kind_of(name: str, shape: Mapping[str, Any]) -> str:
     """The kind of the scenario ``name`` whose config section is ``shape``: its ``kind``, or the
     preset it names."""
@@ -187,10 +176,10 @@ def lowest_level(name: str, config: Mapping[str, Any]) -> tuple[str, float]:
     return f"scenarios.{name}.{field}", float(s[field])
 
 
-def check_terrain(name: str, config: Mapping[str, Any]) -> None:
+def check_terrain(name: str, config: Mapping[str, Any], top: float) -> None:
     """Refuse scenario ``name`` of a validated config unless its bed can be built: a preset's
-    heights in the wrong order; a profile or heightmap of heights above the bed's box or below a
-    grain, a profile's x not strictly increasing or outside [0, ``bed.length``], a heightmap file
+    heights in the wrong order; a profile or heightmap of heights above the bed's box (``top``,
+    m: :func:`dozerlab.config.height_bound`) or below a grain, a profile's x not strictly increasing or outside [0, ``bed.length``], a heightmap file
     missing or not a 2-D array of finite numbers. Raises :class:`ConfigError` naming the field."""
     s = shape_of(name, config)
     kind = kind_of(name, s)
@@ -213,7 +202,7 @@ def check_terrain(name: str, config: Mapping[str, Any]) -> None:
             f"config field 'scenarios.{name}.{other}': a {kind} takes {needs}, not {other}"
         )
     length = float(config["bed"]["length"])
-    floor, top = 2.0 * float(config["bed"]["radius"]), box_top()
+    floor = 2.0 * float(config["bed"]["radius"])
     if kind == "profile":
         points = np.asarray(s["points"], dtype=np.float64)
         x, z = points[:, 0], points[:, 1]
@@ -248,7 +237,7 @@ def _check_heights(where: str, z: np.ndarray, floor: float, top: float) -> None:
         )
 
 
-def check_scenarios(config: Mapping[str, Any]) -> None:
-    """:func:`check_terrain` of every scenario of a validated config."""
+def check_scenarios(config: Mapping[str, Any], top: float) -> None:
+    """:func:`check_terrain` of every scenario of a validated config (``top``: the box's, m)."""
     for name in config["scenarios"]:
-        check_terrain(name, config)
+        check_terrain(name, config, top)

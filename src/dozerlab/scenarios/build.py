@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from dozerlab.config import height_bound
 from dozerlab.ndem import World
 from dozerlab.runtime import DozerlabError
 from dozerlab.scenarios.bed import Bed
@@ -120,7 +121,7 @@ class _Emitter:
     """
 
     def __init__(self, scenario: str, config: dict[str, Any], rng: np.random.Generator):
-        check_terrain(scenario, config)
+        check_terrain(scenario, config, height_bound())
         b = config["bed"]
         self.length, self.width = float(b["length"]), float(b["width"])
         self.r, self.spread, self.gap = (
