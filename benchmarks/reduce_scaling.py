@@ -110,7 +110,7 @@ def main() -> None:
     )
     print(
         f"{'area':>5} {'grains':>7} {'NDEM full':>9} {'NDEM zone':>9} {'reduced':>8} "
-        f"{'red. steps':>10} {'full/red':>8} {'zone/red':>8}"
+        f"{'red. steps':>10} {'full/red':>8} {'zone/red':>8}  reduced ms per step by phase"
     )
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -150,7 +150,8 @@ def main() -> None:
             print(
                 f"{n:>4}x {row['grains']:>7} {row['full']:9.2f} {row['zone']:9.2f} "
                 f"{row['reduced']:8.2f} {row['reduced_steps']:10.2f} "
-                f"{row['full'] / row['reduced']:7.1f}x {row['zone'] / row['reduced']:7.1f}x",
+                f"{row['full'] / row['reduced']:7.1f}x {row['zone'] / row['reduced']:7.1f}x  "
+                + ", ".join(f"{k[3:]} {v:.1f}" for k, v in r.items() if k.startswith("ms_")),
                 flush=True,
             )
     plot(rows, bed.length * bed.width, Path(args.plot), f"{point.scenario} {point.name}")

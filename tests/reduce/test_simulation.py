@@ -81,6 +81,22 @@ def test_grains_above_the_volume_ride_with_its_top_and_fall_until_held_up():
     assert state.x[1, 2] > x[1, 2]
 
 
+def test_the_fields_edge_carries_grains_ahead_of_the_volume_not_beside_it():
+    # one grain a bin ahead of the volume's front and one a bin beyond its side (past the
+    # blade's end), both within reduced.advect_margin (2 bins); the field pushes forward and up
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    tip = np.array([0.0, 0.0, 0.5])
+    ahead, beside = [0.45, 0.0, 0.6], [0.2, 0.25, 0.6]
+    x = np.array([ahead, beside])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0], field[..., 2] = 1.0, 0.5
+    h = 0.01
+    state = _state(x, np.zeros_like(x), grid)
+    state.step(field, np.full(grid.bins, 1500.0), tip, h)
+    np.testing.assert_allclose(state.x[0], np.array(ahead) + h * np.array([1.0, 0.0, 0.5]))
+    np.testing.assert_array_equal(state.x[1], beside)  # at rest beside the volume: frozen
+
+
 def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
     # A row of touching grains on the ground; the field drives the first, the only one in the
     # volume, one radius into the second. The third lies two selection cells from the first
