@@ -7,9 +7,9 @@ k-1 to row k, with the blade tip at p_k:
    again every m rows), from the fields sampled from the reduced state over the last H rows and
    the blade velocity of those rows and the next m (the blade's control is known ahead);
 2. **advection**: a grain whose centre lies in the sampling volume at p_k, or within
-   ``reduced.advect_margin`` bins ahead of or above it (not beside it, beyond the blade's
-   ends), takes the field's velocity, trilinearly interpolated (mass-weighted; beyond the
-   volume the nearest bins' value) to its position, and moves by h·v (left frozen, the grains just outside the volume held back the
+   ``reduced.advect_margin`` bins ahead of, beside or above it, takes the field's velocity,
+   trilinearly interpolated (mass-weighted; beyond the volume the nearest bins' value) to its
+   position, and moves by h·v (left frozen, the grains just outside the volume held back the
    material the field carries: 42 % height accuracy with the truth fields on the quick sweep
    against 66 % with 2 bins, BENCHMARKS.md); a grain above the volume keeps the top bins'
    horizontal velocity and falls until the grains below hold it up; a grain outside that
@@ -316,15 +316,9 @@ class ReducedState:
         s = self.settings
         self.set_blade(tip)
         lower = np.asarray(tip) + np.asarray(self.grid.lower)
-        # the field's edge carries the grains just ahead of and above the volume too (never
-        # below it or behind the blade): frozen, they would hold back the material
+        # the field's edge carries the grains just ahead of, beside and above the volume too
+        # (never below it or behind the blade): frozen, they would hold back the material
         reach_out = s.advect_margin * np.asarray(self.grid.bin_size)
-        # but not those beside it, beyond the blade's ends: the edge bins' forward and upward
-        # velocity, the pile's in front of the blade, dragged them along as a wider blade would
-        # and heaped them against the walls (windrows 3x NDEM's height; surface smoothed at a
-        # grain diameter 75.7 % against 69.2 % with the truth fields at hill 0.875/0.045,
-        # and the loop faster: fewer grains moved; BENCHMARKS.md)
-        reach_out[1] = 0.0
         # and every grain above it: a pile taller than the volume rides with its top bins (left
         # out, the grains above it came to rest on the rising ones and stayed in the air when the
         # blade moved on: 17.6 % height accuracy with the truth fields on step 1.0/0.12)
@@ -335,7 +329,7 @@ class ReducedState:
         inside, near_blade, sel, movable = _select(
             self.x,
             self.moving,
-            lower,
+            lower - reach_out * np.array([0.0, 1.0, 0.0]),
             upper,
             centre,
             reach,
