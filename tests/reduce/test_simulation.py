@@ -81,6 +81,23 @@ def test_grains_above_the_volume_ride_with_its_top_and_fall_until_held_up():
     assert state.x[1, 2] > x[1, 2]
 
 
+def test_the_fields_edge_carries_grains_ahead_of_and_beside_the_volume():
+    # one grain a bin ahead of the volume's front and one a bin beyond its side (past the
+    # blade's end), both within reduced.advect_margin (2 bins), move with the edge bins; one
+    # beyond the margin stays at rest (with nothing carried beside the volume, the ridge
+    # model's loop lost 15 points of smoothed-surface accuracy: BENCHMARKS.md)
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    tip = np.array([0.0, 0.0, 0.5])
+    x = np.array([[0.45, 0.0, 0.6], [0.2, 0.25, 0.6], [0.2, 0.45, 0.6]])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0], field[..., 2] = 1.0, 0.5
+    h = 0.01
+    state = _state(x, np.zeros_like(x), grid)
+    state.step(field, np.full(grid.bins, 1500.0), tip, h)
+    np.testing.assert_allclose(state.x[:2], x[:2] + h * np.array([1.0, 0.0, 0.5]), atol=1e-12)
+    np.testing.assert_array_equal(state.x[2], x[2])
+
+
 def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
     # A row of touching grains on the ground; the field drives the first, the only one in the
     # volume, one radius into the second. The third lies two selection cells from the first

@@ -36,13 +36,16 @@ _MAX_SPAN = 64  # most bins one particle's bounding box may span per axis
 def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, wvel, wmass):
     """Add every particle's weighted contribution to the bins its bounding box overlaps.
 
-    positions, velocities (N, 3) and radii, masses (N,) are world-frame float64; ``lower`` (3,) is
-    the volume's minimum corner in the world frame, ``size`` (3,) the bin size, ``bins`` (3,) the
-    counts. Accumulators: wsum (Nx,Ny,Nz) Σw, wvel (Nx,Ny,Nz,3) Σwv, wmass (Nx,Ny,Nz) Σwm.
+    positions (N, 3), velocities (N, C) (C = 3: one velocity per particle; 3·K: K velocities
+    side by side, accumulated in one pass) and radii, masses (N,) are world-frame float64;
+    ``lower`` (3,) is the volume's minimum corner in the world frame, ``size`` (3,) the bin
+    size, ``bins`` (3,) the counts. Accumulators: wsum (Nx,Ny,Nz) Σw, wvel (Nx,Ny,Nz,C) Σwv,
+    wmass (Nx,Ny,Nz) Σwm.
     """
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
     ov = np.zeros((3, _MAX_SPAN))  # per-axis overlap fraction with each touched bin
+    nc = velocities.shape[1]
     for p in range(positions.shape[0]):
         r = radii[p]
         outside = False
@@ -63,7 +66,6 @@ def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, w
         if outside:
             continue
         m = masses[p]
-        vx, vy, vz = velocities[p, 0], velocities[p, 1], velocities[p, 2]
         for i in range(lo[0], hi[0] + 1):
             wx = ov[0, i - lo[0]]
             for j in range(lo[1], hi[1] + 1):
@@ -73,21 +75,21 @@ def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, w
                     if w <= 0.0:
                         continue
                     wsum[i, j, k] += w
-                    wvel[i, j, k, 0] += w * vx
-                    wvel[i, j, k, 1] += w * vy
-                    wvel[i, j, k, 2] += w * vz
+                    for c in range(nc):
+                        wvel[i, j, k, c] += w * velocities[p, c]
                     wmass[i, j, k] += w * m
 
 
 @numba.njit(cache=True)
 def _finish(wsum, wvel, wmass, inv_volume, velocity, density):
-    """velocity = Σwv/Σw (0 where Σw = 0) and density = Σwm / V_bin, into float32 outputs."""
+    """velocity = Σwv/Σw (0 where Σw = 0) and density = Σwm / V_bin, into float32 outputs
+    (velocity and wvel (Nx,Ny,Nz,C))."""
     nx, ny, nz = wsum.shape
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
                 w = wsum[i, j, k]
-                for a in range(3):
+                for a in range(wvel.shape[3]):
                     velocity[i, j, k, a] = wvel[i, j, k, a] / w if w > 0.0 else 0.0
                 density[i, j, k] = wmass[i, j, k] * inv_volume
 
@@ -140,21 +142,23 @@ class SamplingGrid:
     def _sums(
         self, particles: tuple[np.ndarray, ...], tip: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, 3) and Σw·m (Nx, Ny, Nz) of the particles' algorithm-1
+        """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, C) and Σw·m (Nx, Ny, Nz) of the particles' algorithm-1
         weights w per bin (:func:`_accumulate`); ``particles`` are the arguments of :meth:`sample`
-        before ``tip``: positions, velocities, radii, masses."""
+        before ``tip``: positions, velocities (N, C), radii, masses."""
         positions, velocities, radii, masses = (
             np.ascontiguousarray(a, dtype=np.float64) for a in particles
         )
         n = positions.shape[0]
         if (
             positions.shape != (n, 3)
-            or velocities.shape != (n, 3)
+            or velocities.ndim != 2
+            or velocities.shape[0] != n
+            or velocities.shape[1] % 3
             or radii.shape != (n,)
             or masses.shape != (n,)
         ):
             raise ValueError(
-                "positions/velocities must be (N, 3) and radii/masses (N,), got "
+                "positions must be (N, 3), velocities (N, 3) or (N, 3K), radii/masses (N,), got "
                 f"{positions.shape}, {velocities.shape}, {radii.shape}, {masses.shape}"
             )
         if n and radii.min() <= 0:
@@ -164,7 +168,7 @@ class SamplingGrid:
                 f"particles span more than {_MAX_SPAN - 2} bins; use fewer, larger bins"
             )
         wsum = np.zeros(self.bins)
-        wvel = np.zeros((*self.bins, 3))
+        wvel = np.zeros((*self.bins, velocities.shape[1]))
         wmass = np.zeros(self.bins)
         lower = np.asarray(tip, dtype=np.float64) + np.asarray(self.lower)
         _accumulate(
@@ -217,3 +221,24 @@ class SamplingGrid:
         density = np.empty(wsum.shape, dtype=np.float32)
         _finish(wsum, wvel, wmass, 1.0 / self.bin_volume, velocity, density)
         return velocity, density
+
+    def sample_velocities(
+        self,
+        positions: np.ndarray,
+        velocities: tuple[np.ndarray, ...],
+        radii: np.ndarray,
+        masses: np.ndarray,
+        tip: np.ndarray,
+    ) -> tuple[list[np.ndarray], np.ndarray]:
+        """:meth:`sample` of several velocities of the same particles in one pass over them.
+
+        ``velocities``: K arrays (N, 3), m/s. Returns the K velocity fields (Nx, Ny, Nz, 3)
+        float32, each bit for bit what :meth:`sample` gives for it, and the density
+        (Nx, Ny, Nz) float32, kg/m³.
+        """
+        stacked = np.concatenate([np.asarray(v, dtype=np.float64) for v in velocities], axis=1)
+        wsum, wvel, wmass = self._sums((positions, stacked, radii, masses), tip)
+        velocity = np.empty(wvel.shape, dtype=np.float32)
+        density = np.empty(wsum.shape, dtype=np.float32)
+        _finish(wsum, wvel, wmass, 1.0 / self.bin_volume, velocity, density)
+        return [velocity[..., 3 * i : 3 * i + 3] for i in range(len(velocities))], density

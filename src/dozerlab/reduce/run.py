@@ -181,11 +181,9 @@ def reduce_run(
             sweeps.append(st.sweeps)
             t0 = wallclock.perf_counter()
             near = state.near(tip)
-            vel[k], rho[k] = grid.sample(
-                state.x[near], state.v[near], state.r[near], state.m[near], tip
-            )
-            flow[k], _ = grid.sample(
-                state.x[near], state.flow[near], state.r[near], state.m[near], tip
+            # the fields and the field model's flow history in one pass over the grains
+            (vel[k], flow[k]), rho[k] = grid.sample_velocities(
+                state.x[near], (state.v[near], state.flow[near]), state.r[near], state.m[near], tip
             )
             t0 = times.add("sampling", t0)
             force, torque = force_model.predict(vel[: k + 1], rho[: k + 1], blade_v[: k + 1])

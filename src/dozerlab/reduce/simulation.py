@@ -445,7 +445,7 @@ def compile_kernels(grid: SamplingGrid) -> None:
     state.step(np.zeros((*grid.bins, 3)), np.zeros(grid.bins), np.zeros(3), 0.01)
     for method in ("gauss_seidel", "jacobi"):
         project(x.copy(), np.full(2, 0.03), np.ones(2), state.bodies, iterations=1, method=method)
-    grid.sample(x, np.zeros_like(x), np.full(2, 0.03), np.ones(2), np.zeros(3))
+    grid.sample_velocities(x, (x, x), np.full(2, 0.03), np.ones(2), np.zeros(3))
 
 
 def bodies_of(world: Any, blade: int) -> Bodies:

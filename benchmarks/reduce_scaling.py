@@ -1,0 +1,195 @@
+"""How cost grows with the terrain: NDEM (full solve and active zone) and the reduced loop on
+beds of 1x, 2x and 4x the default area, same blade and path, in one run.
+
+    python benchmarks/reduce_scaling.py --results results --scenario hill --speed 0.875 \\
+        --depth 0.045 [--config config/config.yaml] [--steps 60] [--tiles 1 2 4] [--threads 1] \\
+        [--plot docs/images/reduce-scaling.png]
+
+The larger beds are the point's settled bed repeated across its width (copies side by side, each
+shifted by the bed's width, so the terrain under the blade's path is the same); a seam is not
+settled (a wall's contacts become the next copy's grains, and NDEM's first step sets the grains
+along it moving, which the reduced loop then moves too), so the larger beds overstate how both
+grow. The blade runs the first ``--steps`` steps of the point's trajectory on each. Per bed,
+side by side on one machine and thread count: the full NDEM solve, NDEM with
+``solver.active_zone.enabled``, and the reduced loop replaying the full solve's own fields
+(``replay``: the loop's cost with perfect fields, the evolution model's inference apart). Printed
+per bed: grains, wall time per simulated second of each (the reduced loop's with and without its
+NDEM warm-up row) and the speed-ups; the figure plots the wall time per simulated second
+against the bed's area. Not a test: the times depend on the machine and its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def tiled(bed: Any, tiles: int) -> Any:
+    """``bed`` repeated ``tiles`` times across its width, centred on y = 0 (a Bed)."""
+    from dozerlab.scenarios.bed import Bed
+
+    shifts = (np.arange(tiles) - (tiles - 1) / 2.0) * bed.width
+    return Bed(
+        scenario=bed.scenario,
+        length=bed.length,
+        width=bed.width * tiles,
+        positions=np.concatenate([bed.positions + np.array([0.0, s, 0.0]) for s in shifts]),
+        radii=np.tile(bed.radii, tiles),
+        masses=np.tile(bed.masses, tiles),
+        velocities=np.tile(bed.velocities, (tiles, 1)),
+        angular_velocities=np.tile(bed.angular_velocities, (tiles, 1)),
+        material=bed.material,
+        seed=bed.seed,
+        info={**bed.info, "tiles": tiles},
+    )
+
+
+def ndem(
+    bed: Path, traj: Path, config: dict[str, Any], store: Path, labels: dict[str, Any]
+) -> float:
+    """One NDEM simulate loop of the bed and trajectory files into ``store``; its loop wall
+    time, s."""
+    from dozerlab.fields.jobs import simulate
+
+    return float(simulate(bed, traj, config, store, **labels)["wall_time_s"])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", default="results", help="a workflow's results folder")
+    ap.add_argument("--config", default="config/config.yaml")
+    ap.add_argument("--scenario", default="hill")
+    ap.add_argument("--speed", type=float, default=0.875)
+    ap.add_argument("--depth", type=float, default=0.045)
+    ap.add_argument("--steps", type=int, default=60, help="solver steps of the path to run")
+    ap.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 4])
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--plot", default="docs/images/reduce-scaling.png")
+    args = ap.parse_args()
+    os.environ["DOZERLAB_MLFLOW"] = "0"
+
+    from dozerlab import sweep as P
+    from dozerlab.config import load_config
+    from dozerlab.reduce.models import ForcePredictor, load_field_model
+    from dozerlab.reduce.run import reduce_run
+    from dozerlab.runtime import set_threads
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.trajectory import Trajectory
+
+    threads = set_threads(args.threads)
+    config = load_config(args.config)
+    full_cfg = copy.deepcopy(config)
+    full_cfg["solver"]["active_zone"]["enabled"] = False
+    zone_cfg = copy.deepcopy(config)
+    zone_cfg["solver"]["active_zone"]["enabled"] = True
+    point = P.SweepPoint(args.scenario, args.speed, args.depth)
+    res = Path(args.results)
+    bed = Bed.load(P.bed_path(res, point.scenario))
+    whole = Trajectory.load_csv(P.trajectory_path(res, point))
+    k = min(args.steps, whole.steps)
+    traj = Trajectory(
+        whole.time[: k + 1],
+        whole.position[: k + 1],
+        whole.velocity[:k],
+        whole.speed,
+        whole.depth,
+        whole.scenario,
+        whole.goal_height,
+        whole.dt,
+    )
+    sim_s = k * traj.dt
+    force = ForcePredictor(P.model_path(res, config["reduced"]["force_model"]))
+    labels = {"scenario": point.scenario, "speed": point.speed, "depth": point.depth}
+    print(
+        f"{point.scenario} {point.name}: first {k} steps ({sim_s:.2f} s simulated), "
+        f"{threads} thread(s); wall time per simulated second"
+    )
+    print(
+        f"{'area':>5} {'grains':>7} {'NDEM full':>9} {'NDEM zone':>9} {'reduced':>8} "
+        f"{'red. steps':>10} {'full/red':>8} {'zone/red':>8}  reduced step: ms by phase"
+    )
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Path(tmp)
+        traj_path = t / "trajectory.csv"
+        traj.save_csv(traj_path)
+        for n in args.tiles:
+            b = tiled(bed, n)
+            bed_path = t / f"bed{n}.npz"
+            b.save(bed_path)
+            store = t / f"full{n}.zarr"
+            full = ndem(bed_path, traj_path, full_cfg, store, labels)
+            zone = ndem(bed_path, traj_path, zone_cfg, t / f"zone{n}.zarr", labels)
+            fm = load_field_model("replay", tuple(config["sampling"]["bins"]), store)
+            r = reduce_run(
+                bed_path,
+                traj_path,
+                full_cfg,
+                fm,
+                force,
+                t / f"reduced{n}.zarr",
+                t / f"reduced{n}.npz",
+                **labels,
+            )
+            steps_s = r["wall_time_s"] - r["warmup_s"]
+            every = int(config["sampling"]["every"])
+            row = {
+                "tiles": n,
+                "grains": b.count,
+                "full": full / sim_s,
+                "zone": zone / sim_s,
+                "reduced": r["wall_time_s"] / sim_s,
+                # the reduced steps alone, per simulated second of them
+                "reduced_steps": steps_s / (r["reduced_steps"] * every * traj.dt),
+            }
+            rows.append(row)
+            print(
+                f"{n:>4}x {row['grains']:>7} {row['full']:9.2f} {row['zone']:9.2f} "
+                f"{row['reduced']:8.2f} {row['reduced_steps']:10.2f} "
+                f"{row['full'] / row['reduced']:7.1f}x {row['zone'] / row['reduced']:7.1f}x  "
+                + ", ".join(f"{k[3:]} {v:.1f}" for k, v in r.items() if k.startswith("ms_"))
+                + f"; grains moved a step {r['active_grains_mean']:.0f}",
+                flush=True,
+            )
+    plot(rows, bed.length * bed.width, Path(args.plot), f"{point.scenario} {point.name}")
+    print(f"plot: {args.plot}")
+
+
+def plot(rows: list[dict[str, Any]], area: float, out: Path, title: str) -> None:
+    """Wall time per simulated second (s/s) against the bed's area (m²), one line per solver."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = [area * r["tiles"] for r in rows]
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for key, label in (
+        ("full", "NDEM, full solve"),
+        ("zone", "NDEM, active zone"),
+        ("reduced", "reduced loop (replay), NDEM warm-up included"),
+        ("reduced_steps", "reduced loop, its steps only"),
+    ):
+        ax.plot(x, [r[key] for r in rows], "o-", label=label)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xticks(x, [f"{a:g}" for a in x])
+    ax.set_xlabel("bed area (m²)")
+    ax.set_ylabel("wall time per simulated second (s/s)")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
