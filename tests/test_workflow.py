@@ -503,11 +503,19 @@ def test_twin_runs_join_the_workflow_only_when_enabled(tmp_path):
         assert done.returncode == 0, done.stderr[-3000:]
         jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
         assert jobs.count("twin") == twin_jobs
-        twins = re.findall(r"dozerlab simulate .*--jitter (\S+) --jitter-seed (\S+) .*--out '?([^'\s]+)", done.stdout)
+        twins = re.findall(
+            r"dozerlab simulate .*--jitter (\S+) --jitter-seed (\S+) .*--out '?([^'\s]+)",
+            done.stdout,
+        )
         held_out = quick["sweep"]["interpolation"] + quick["sweep"]["extrapolation"]
-        stores = [f"results/twins/{p['scenario']}/speed~{p['speed']}_depth~{p['depth']}.zarr" for p in held_out]
+        stores = [
+            f"results/twins/{p['scenario']}/speed~{p['speed']}_depth~{p['depth']}.zarr"
+            for p in held_out
+        ]
         assert sorted(twins) == (sorted(("2e-06", "7", s) for s in stores) if enabled else [])
-        compare = re.findall(r"^rule compare_reduced:\n(?:    .*\n)*?    input: (.*)$", done.stdout, re.M)
+        compare = re.findall(
+            r"^rule compare_reduced:\n(?:    .*\n)*?    input: (.*)$", done.stdout, re.M
+        )
         assert compare and all(("results/twins/" in line) == enabled for line in compare)
         assert jobs.count("simulate") == 6  # NDEM's own runs, with or without twins
 

@@ -295,7 +295,8 @@ def reference(
         raise DozerlabError(
             f"different grain counts: {ndem_state} holds {end.count}, {bed_path} {bed.count}"
         )
-    sub = tuple(int(n) for n in config["trajectory"]["subdivisions"])
+    nx, ny = (int(n) for n in config["trajectory"]["subdivisions"])
+    sub = (nx, ny)
     hx, h0 = height_field(bed.positions, bed.radii, bed.length, bed.width, sub)
     _, hn = height_field(end.positions, bed.radii, bed.length, bed.width, sub)
     sigma = surface_sigma(bed.radii)
@@ -314,8 +315,8 @@ def reference(
         time=time,
         row_dt=float(np.median(np.diff(time))) if len(time) > 1 else 1.0,
         wall_time_s=nd.attrs.get("wall_time_s"),
-        sizes=dict(nd.sizes),
-        subdivisions=(sub[0], sub[1]),
+        sizes={str(k): int(v) for k, v in nd.sizes.items()},
+        subdivisions=sub,
         moved_radii=float(config["reduced"]["moved_radii"]),
     )
 
@@ -382,8 +383,10 @@ def skills(run: Mapping[str, Any], twin: Mapping[str, Any]) -> dict[str, float |
     out: dict[str, float | None] = {}
     for key in FIGURES:
         a, b = run.get(key), twin.get(key)
-        ok = a is not None and b is not None and np.isfinite(a) and np.isfinite(b) and b != 0
-        out[f"{key}_skill"] = float(a) / float(b) if ok else None
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) or b == 0:
+            out[f"{key}_skill"] = None
+        else:
+            out[f"{key}_skill"] = float(a) / float(b)
     return out
 
 
@@ -414,7 +417,7 @@ def compare_point(
 
     ref = reference(ndem_store, bed_path, ndem_state, config)
     rd = open_store(reduced_store)
-    if ref.sizes != dict(rd.sizes):
+    if ref.sizes != {str(k): int(v) for k, v in rd.sizes.items()}:
         raise DozerlabError(
             f"{reduced_store} ({dict(rd.sizes)}) is not aligned with {ndem_store} ({ref.sizes})"
         )
@@ -465,7 +468,7 @@ def compare_point(
     }
     if twin is not None:
         td = open_store(twin[0])
-        if ref.sizes != dict(td.sizes):
+        if ref.sizes != {str(k): int(v) for k, v in td.sizes.items()}:
             raise DozerlabError(
                 f"{twin[0]} ({dict(td.sizes)}) is not aligned with {ndem_store} ({ref.sizes})"
             )
