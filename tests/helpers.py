@@ -468,6 +468,7 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
     return {
         "bed": len(cfg["sweep"]["scenarios"]),
         "simulate": len(points),
+        "twin": len(held_out) if cfg["reduced"]["twin"]["enabled"] else 0,
         "train": len(models),
         "validate": len(models),
         "train_dynamics": len(dynamics),

@@ -170,6 +170,10 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
     results = quick / "results"
     for point in POINTS:
         assert Bed.load(P.state_path(results, point)).count > 0  # NDEM's final state
+    for point in HELD_OUT:  # its twin: from the bed moved by reduced.twin.jitter_m
+        twin = open_store(P.twin_path(results, point))
+        assert twin.attrs["jitter_m"] == CFG["reduced"]["twin"]["jitter_m"]
+        assert Bed.load(P.twin_path(results, point, "npz")).count == twin.attrs["particle_count"]
     for model in REDUCED:
         for point in HELD_OUT:
             ds = open_store(P.reduced_path(results, model, point))
@@ -200,6 +204,8 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
         for entry in summary["points"]:
             assert entry["left_bed"] == 0 and entry["targets_met"]["nothing_through"]
             assert np.isfinite(entry["height_accuracy"]) and entry["loop_speedup"] > 0
+            # beside NDEM's twin (reduced.twin, on in the quick sweep)
+            assert 0 < entry["twin_surface_accuracy"] <= 1 and entry["surface_accuracy_skill"] > 0
             for plot in entry["plots"]:
                 assert (results / "reduced" / model / "compare" / plot).is_file()
 
