@@ -67,3 +67,11 @@ def test_ndem_compared_with_itself_meets_the_accuracy_targets_only(ndem_run, tmp
     assert len(entry["plots"]) == 3  # force, fields, height; no GIF
     assert summary["overall"]["interpolation"] == summary["overall"]["all"]
     assert summary["overall"]["all"]["loop_speedup"] == 1.0
+
+
+def test_the_summary_averages_every_figure_the_twins_and_the_skills():
+    from dozerlab.reduce.compare import FIGURES
+    from dozerlab.reduce.jobs import AGGREGATE
+
+    for key in FIGURES:
+        assert {key, f"twin_{key}", f"{key}_skill"} <= AGGREGATE.keys()
