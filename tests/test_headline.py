@@ -28,10 +28,18 @@ def test_metrics_and_summary_from_the_results(tmp_path):
         doc = {"overall": {"one_step": {"velocity": one}, "rollout_at": rollout}}
         write(P.dynamics_validation_path(tmp_path, model), doc)
     points = [
-        {"targets_met": {"height_accuracy": True, "loop_speedup": False, "job_speedup": None}},
-        {"targets_met": {"height_accuracy": True, "loop_speedup": True, "job_speedup": None}},
+        {"targets_met": {"surface_skill": True, "loop_speedup": False, "job_speedup": None}},
+        {"targets_met": {"surface_skill": True, "loop_speedup": True, "job_speedup": None}},
     ]
-    overall = {"height_accuracy": 0.85, "force_x_rel_rmse": 0.2, "loop_speedup": 40.0}
+    overall = {
+        "surface_accuracy": 0.72,
+        "twin_surface_accuracy": 0.9,
+        "surface_accuracy_skill": 0.8,
+        "height_accuracy": 0.85,
+        "force_x_rel_rmse": 0.2,
+        "loop_speedup": 40.0,
+        "velocity_rel_l2": 0.3,  # not a headline figure
+    }
     write(
         P.reduced_comparison_path(tmp_path, "ridge"),
         {"overall": {"all": overall}, "points": points},
@@ -41,6 +49,9 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     assert got["force_x_rel_rmse/cnn"] == got["force_x_rel_rmse/best"] == 0.2
     assert got["evolution_velocity_error/ridge_rollout_100"] == 0.9
     assert got["reduced_ridge/height_accuracy"] == 0.85
+    assert got["reduced_ridge/twin_surface_accuracy"] == 0.9
+    assert got["reduced_ridge/surface_accuracy_skill"] == 0.8
+    assert "reduced_ridge/velocity_rel_l2" not in got
     assert (got["reduced_ridge/targets_met"], got["reduced_ridge/targets_missed"]) == (3.0, 1.0)
     assert not any(k.startswith("reduced_replay") for k in got)  # not built: left out
 
@@ -52,7 +63,7 @@ def test_metrics_and_summary_from_the_results(tmp_path):
         "ridge 0.50x one step, 1.00x rollout 100; unet 0.25x one step, 2.00x rollout 100"
     )
     assert lines[3].endswith(
-        "ridge on 2 held-out points: height accuracy 85 %, "
-        "force x rel. RMSE 20 %, loop speed-up 40.0x"
+        "ridge on 2 held-out points: smoothed-surface accuracy 72 % (twin 90 %, skill 0.80), "
+        "height accuracy 85 %, force x rel. RMSE 20 %, loop speed-up 40.0x"
     )
-    assert lines[4].endswith("targets met: height_accuracy; missed: loop_speedup (1 of 2)")
+    assert lines[4].endswith("targets met: surface_skill; missed: loop_speedup (1 of 2)")

@@ -170,6 +170,10 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
     results = quick / "results"
     for point in POINTS:
         assert Bed.load(P.state_path(results, point)).count > 0  # NDEM's final state
+    for point in HELD_OUT:  # its twin: from the bed moved by reduced.twin.jitter_m
+        twin = open_store(P.twin_path(results, point))
+        assert twin.attrs["jitter_m"] == CFG["reduced"]["twin"]["jitter_m"]
+        assert Bed.load(P.twin_path(results, point, "npz")).count == twin.attrs["particle_count"]
     for model in REDUCED:
         for point in HELD_OUT:
             ds = open_store(P.reduced_path(results, model, point))
@@ -200,6 +204,8 @@ def test_reduced_runs_are_aligned_stores_with_final_states_and_are_compared(quic
         for entry in summary["points"]:
             assert entry["left_bed"] == 0 and entry["targets_met"]["nothing_through"]
             assert np.isfinite(entry["height_accuracy"]) and entry["loop_speedup"] > 0
+            # beside NDEM's twin (reduced.twin, on in the quick sweep)
+            assert 0 < entry["twin_surface_accuracy"] <= 1 and entry["surface_accuracy_skill"] > 0
             for plot in entry["plots"]:
                 assert (results / "reduced" / model / "compare" / plot).is_file()
 
@@ -491,12 +497,41 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
         assert set(forces) == models
 
 
+def test_twin_runs_join_the_workflow_only_when_enabled(tmp_path):
+    """reduced.twin.enabled: one twin NDEM job per held-out point, from its bed and trajectory
+    with the configured jitter, and compare-reduced reads the twins; disabled: none."""
+    quick = yaml.safe_load(QUICK.read_text())
+    for enabled, twin_jobs in ((True, 2), (False, 0)):
+        quick["reduced"]["twin"] = {"enabled": enabled, "jitter_m": 2e-6, "seed": 7}
+        cfg = tmp_path / f"{enabled}.yaml"
+        cfg.write_text(yaml.safe_dump(quick))
+        done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
+        assert done.returncode == 0, done.stderr[-3000:]
+        jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
+        assert jobs.count("twin") == twin_jobs
+        twins = re.findall(
+            r"dozerlab simulate .*--jitter (\S+) --jitter-seed (\S+) .*--out '?([^'\s]+)",
+            done.stdout,
+        )
+        held_out = quick["sweep"]["interpolation"] + quick["sweep"]["extrapolation"]
+        stores = [
+            f"results/twins/{p['scenario']}/speed~{p['speed']}_depth~{p['depth']}.zarr"
+            for p in held_out
+        ]
+        assert sorted(twins) == (sorted(("2e-06", "7", s) for s in stores) if enabled else [])
+        compare = re.findall(
+            r"^rule compare_reduced:\n(?:    .*\n)*?    input: (.*)$", done.stdout, re.M
+        )
+        assert compare and all(("results/twins/" in line) == enabled for line in compare)
+        assert jobs.count("simulate") == 6  # NDEM's own runs, with or without twins
+
+
 def test_the_targets_reach_only_the_comparison_and_the_report(tmp_path):
     """Changing only reduced.targets re-ran six jobs: a rule reruns when its params (the
     --config it passes) change, and only compare-reduced and the report read the targets."""
     quick = yaml.safe_load(QUICK.read_text())
     commands = {}
-    for name, targets in (("before", {}), ("after", {"force_rmse": 0.5, "loop_speedup": 7})):
+    for name, targets in (("before", {}), ("after", {"force_skill": 0.5, "loop_speedup": 7})):
         quick["reduced"]["targets"] = targets
         cfg = tmp_path / f"{name}.yaml"
         cfg.write_text(yaml.safe_dump(quick))

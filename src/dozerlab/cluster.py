@@ -20,6 +20,7 @@ RULES = (
     "bed",
     "trajectory",
     "simulate",
+    "twin",
     "train",
     "validate",
     "train_dynamics",
@@ -36,6 +37,7 @@ RULES = (
 THREADED = {
     "bed": "bed",
     "simulate": "simulate",
+    "twin": "simulate",  # NDEM's run of the point, at its threads
     "train": "train",
     "train_dynamics": "dynamics",
     "reduce": "simulate",  # the NDEM run's threads: the speed-up compares the two at equal threads

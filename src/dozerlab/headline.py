@@ -10,8 +10,8 @@ Read from the files the rules write (paths from :mod:`dozerlab.sweep`); a result
 - ``results/dynamics/{model}.json``: each evolution model's relative velocity error
   on the held-out points one step ahead and at the longest rollout (fractions);
 - ``results/reduced/{model}.json``: the reduced simulation of each dynamics model against NDEM
-  on the held-out points (means of accuracies and errors, the least speed-ups) and which of
-  ``reduced.targets`` each point meets.
+  on the held-out points (means of accuracies and errors, beside the twin's with the skills;
+  the least speed-ups) and which of ``reduced.targets`` each point meets.
 """
 
 from __future__ import annotations
@@ -24,15 +24,26 @@ from typing import Any
 from dozerlab import sweep as P
 
 #: The reduced simulation's figures on the parent run: (key in the comparison's
-#: ``overall.all``, what it is).
+#: ``overall.all``, what it is). On the scales NDEM reproduces each is followed by the twin's
+#: (NDEM again from the bed moved by a micrometre) and the skill, the model's over the twin's.
 REDUCED_FIGURES = {
+    "surface_accuracy": "smoothed-surface accuracy",
+    "twin_surface_accuracy": "twin",
+    "surface_accuracy_skill": "skill",
+    "force_lp_rel_rmse": "low-passed force x rel. RMSE",
+    "twin_force_lp_rel_rmse": "twin",
+    "force_lp_rel_rmse_skill": "skill",
+    "force_mean_rel_err": "mean force x rel. error",
+    "twin_force_mean_rel_err": "twin",
     "height_accuracy": "height accuracy",
+    "twin_height_accuracy": "twin",
     "force_x_rel_rmse": "force x rel. RMSE",
+    "twin_force_x_rel_rmse": "twin",
     "loop_speedup": "loop speed-up",
     "job_speedup": "job speed-up",
 }
-#: The figures that are fractions (shown in %); the speed-ups are factors.
-PERCENT = ("height_accuracy", "force_x_rel_rmse")
+#: The figures that are fractions (shown in %); the skills are ratios, the speed-ups factors.
+PERCENT = tuple(k for k in REDUCED_FIGURES if not k.endswith(("_skill", "_speedup")))
 
 
 def _read(path: Path) -> dict[str, Any] | None:
@@ -119,6 +130,22 @@ def _pct(value: float) -> str:
     return f"{100 * value:.0f} %"
 
 
+#: The figures said in brackets after the model's own: the twin's and the skill.
+_BESIDE = tuple(k for k in REDUCED_FIGURES if k.startswith("twin_") or k.endswith("_skill"))
+
+
+def _said(key: str, f: Mapping[str, float]) -> str:
+    """One reduced figure on the console, e.g. ``smoothed-surface accuracy 71 % (twin 90 %,
+    skill 0.79)``; the twin's and the skill where the figures hold them."""
+    text = f"{REDUCED_FIGURES[key]} " + (_pct(f[key]) if key in PERCENT else f"{f[key]:.1f}x")
+    beside = []
+    if (twin := f.get(f"twin_{key}")) is not None:
+        beside.append(f"twin {_pct(twin)}")
+    if (skill := f.get(f"{key}_skill")) is not None:
+        beside.append(f"skill {skill:.2f}")
+    return text + (f" ({', '.join(beside)})" if beside else "")
+
+
 def _duration(seconds: float) -> str:
     minutes, secs = divmod(round(seconds), 60)
     return f"{minutes} min {secs} s" if minutes else f"{secs} s"
@@ -153,11 +180,7 @@ def summary_lines(results: str | Path, cfg: Mapping[str, Any], wall_s: float) ->
         lines.append(f"  evolution velocity error over persistence's, held-out points: {said}")
     for model, o in reduced_outcomes(results, cfg).items():
         f = o["figures"]
-        shown = [
-            f"{REDUCED_FIGURES[k]} {_pct(f[k]) if k in PERCENT else f'{f[k]:.1f}x'}"
-            for k in REDUCED_FIGURES
-            if k in f
-        ]
+        shown = [_said(k, f) for k in REDUCED_FIGURES if k in f and k not in _BESIDE]
         lines.append(f"  reduced   {model} on {o['points']} held-out points: " + ", ".join(shown))
         met = [t for t in o["met"] if t not in o["missed"]]
         missed = [f"{t} ({n} of {o['points']})" for t, n in o["missed"].items()]

@@ -153,6 +153,9 @@ PATHS = {
     "field_plots": f"plots/{{scenario}}/{POINT_STEM}",
     "simulate_benchmark": f"benchmarks/simulate/{{scenario}}/{POINT_STEM}.tsv",
     "state": f"states/{{scenario}}/{POINT_STEM}.npz",
+    "twin": f"twins/{{scenario}}/{POINT_STEM}.zarr",
+    "twin_state": f"twins/{{scenario}}/{POINT_STEM}.npz",
+    "twin_benchmark": f"benchmarks/twin/{{scenario}}/{POINT_STEM}.tsv",
     "reduced": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.zarr",
     "reduced_state": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.npz",
     "reduce_benchmark": f"benchmarks/reduce/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.tsv",
@@ -227,6 +230,14 @@ def simulate_benchmark_path(results: str | Path, point: SweepPoint) -> Path:
 def state_path(results: str | Path, point: SweepPoint) -> Path:
     """``results/states/{scenario}/speed~{speed}_depth~{depth}.npz``: NDEM's final particle state."""
     return _path("state", results, point)
+
+
+def twin_path(results: str | Path, point: SweepPoint, ext: str = "zarr") -> Path:
+    """``results/twins/{scenario}/speed~{speed}_depth~{depth}.{ext}``: the point's twin NDEM run
+    (``reduced.twin``), its field store (``zarr``) or final state (``npz``)."""
+    if ext not in ("zarr", "npz"):
+        raise ValueError(f"a twin run is a zarr store or an npz state, not '{ext}'")
+    return _path("twin" if ext == "zarr" else "twin_state", results, point)
 
 
 def reduced_path(

@@ -65,6 +65,7 @@ MAX_WAIT_S = 86400.0
 ROLES = {
     "bed": "bed",
     "simulate": "simulate",
+    "twin": "simulate",
     "train": "train",
     "train_dynamics": "train",
     "train_loop_force": "train",

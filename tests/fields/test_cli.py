@@ -4,6 +4,7 @@ that are missing or bad named in a one-line error (exit 2)."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import xarray as xr
 from dozerlab.cli import main
 from dozerlab.fields.store import write_store
 from dozerlab.runtime import FOLDER_MARK
-from tests.helpers import TINY_RUN
+from tests.helpers import TINY_RUN, write_tiny_run
 
 
 def test_plot_fields_defaults_to_four_spread_slices_and_no_animation_on_request(
@@ -71,3 +72,59 @@ def test_simulate_refuses_less_than_one_thread(tmp_path, capsys):
         main([*argv, "--threads", "0"])
     assert exit_.value.code == 2
     assert "argument --threads: 0 is less than the minimum of 1" in capsys.readouterr().err
+
+
+def test_simulate_with_jitter_runs_a_twin_in_ndems_formats(tmp_path, capsys):
+    """--jitter: NDEM from the bed with every grain moved that far, as simulate's own outputs
+    (marked so); at the start the twin's grains move by the jitter's scale where NDEM's rest."""
+    from dozerlab.fields.run import STATE_FILE
+    from dozerlab.fields.store import FIELD_STORE, open_store
+    from dozerlab.scenarios.bed import Bed
+
+    config = {**TINY_RUN, "solver": {**TINY_RUN["solver"], "iterations": 100}}
+    write_tiny_run(tmp_path)  # the same path whatever the solver's sweeps
+    base = ["simulate", "--bed", str(tmp_path / "bed.npz"), "--config", json.dumps(config)]
+    base += ["--trajectory", str(tmp_path / "speed~0.5_depth~0.06.csv")]
+    for name, extra in (("ndem", []), ("twin", ["--jitter", "1e-6", "--jitter-seed", "3"])):
+        out = ["--out", str(tmp_path / f"{name}.zarr"), "--state", str(tmp_path / f"{name}.npz")]
+        assert main([*base, *out, *extra]) == 0, capsys.readouterr().err
+    ndem, twin = open_store(tmp_path / "ndem.zarr"), open_store(tmp_path / "twin.zarr")
+    assert FIELD_STORE.recognise(tmp_path / "twin.zarr")
+    assert STATE_FILE.recognise(tmp_path / "twin.npz")  # a rerun replaces them, as simulate's
+    assert (twin.attrs["jitter_m"], twin.attrs["jitter_seed"]) == (1e-6, 3)
+    assert "jitter_m" not in ndem.attrs and twin.sizes == ndem.sizes
+    # the first row (one 0.01 s step): NDEM's lattice at rest, the twin's settling its µm overlaps
+    v0_ndem, v0_twin = ndem["velocity"].values[0], twin["velocity"].values[0]
+    assert np.abs(v0_ndem).max() < 1e-12
+    assert 1e-7 < np.abs(v0_twin).max() < 1e-6 / 0.01
+    ends = Bed.load(tmp_path / "ndem.npz"), Bed.load(tmp_path / "twin.npz")
+    assert not np.array_equal(ends[0].positions, ends[1].positions)
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--jitter", "0"], "argument --jitter: .*reduced.twin.jitter_m"),
+        (["--jitter=-1e-6"], "argument --jitter: .*reduced.twin.jitter_m"),
+        (["--jitter", "0.01"], "argument --jitter: .*reduced.twin.jitter_m"),
+        (["--jitter", "nan"], "argument --jitter: .*reduced.twin.jitter_m"),
+        (
+            ["--jitter", "1e-6", "--jitter-seed", "-1"],
+            "argument --jitter-seed: .*reduced.twin.seed",
+        ),
+    ],
+)
+def test_simulate_refuses_a_jitter_outside_the_configs_bounds(tmp_path, capsys, flags, message):
+    argv = ["simulate", "--bed", "b.npz", "--trajectory", "t.csv", "--out", str(tmp_path / "f")]
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, *flags])
+    assert exit_.value.code == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_simulate_refuses_a_jitter_seed_without_a_jitter(tmp_path, capsys):
+    argv = ["simulate", "--bed", "b.npz", "--trajectory", "t.csv", "--out", str(tmp_path / "f")]
+    assert main([*argv, "--jitter-seed", "3"]) == 2
+    assert "--jitter-seed needs --jitter" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

@@ -11,15 +11,20 @@ import pytest
 
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce.compare import (
+    FIGURES,
     compare_point,
     field_errors,
+    gaussian_smooth,
     height_accuracy,
     job_seconds,
     largest_overlap,
+    low_pass,
     outside_box,
     relative_l2,
     relative_rmse,
+    skills,
     sliced_emd,
+    smoothed_surface,
     targets_met,
 )
 from dozerlab.reduce.projection import Bodies
@@ -95,47 +100,132 @@ def test_job_seconds_read_snakemakes_benchmark(tmp_path):
     assert job_seconds(None) is None and job_seconds(tmp_path / "none.tsv") is None
 
 
+TARGETS = {
+    "replay_surface_skill": 0.95,
+    "surface_skill": 0.9,
+    "force_skill": 0.8,
+    "loop_speedup": 40,
+    "job_speedup": 10,
+    "max_overlap": 0.1,
+}
+
+
 def test_targets_met_and_missing_figures():
-    targets = {
-        "height_accuracy": 0.8,
-        "force_rmse": 0.25,
-        "loop_speedup": 50,
-        "job_speedup": 5,
-        "max_overlap": 0.1,
-    }
     metrics = {
-        "height_accuracy": 0.85,
-        "force_x_rel_rmse": 0.3,
+        "surface_accuracy_skill": 0.92,
+        "force_lp_rel_rmse_skill": 0.85,
         "loop_speedup": 60.0,
         "job_speedup": None,
         "max_overlap_loop": float("nan"),
         "left_bed": 0,
         "body_depth_final_m": 2e-4,
     }
-    assert targets_met(metrics, targets) == {
-        "height_accuracy": True,
-        "force_rmse": False,
+    assert targets_met(metrics, TARGETS) == {
+        "surface_skill": True,
+        "force_skill": False,  # 0.85 of the twin's error, above 0.8
         "loop_speedup": True,
         "job_speedup": None,
         "max_overlap": None,
         "nothing_left": True,
         "nothing_through": False,  # 0.2 mm into a body
     }
+    # replay, the loop's own fidelity, is held to the surface skill of 0.95 alone
+    replay = targets_met(metrics, TARGETS, replay=True)
+    assert replay["replay_surface_skill"] is False
+    assert "surface_skill" not in replay and "force_skill" not in replay
+    # without a twin there is no skill: not met, not missed
+    bare = {k: v for k, v in metrics.items() if not k.endswith("_skill")}
+    assert targets_met(bare, TARGETS)["surface_skill"] is None
+    assert targets_met(bare, TARGETS)["force_skill"] is None
     # no deeper than NDEM's own final state of the point: its compliant contacts
-    assert targets_met(metrics | {"body_depth_final_ndem_m": 3e-4}, targets)["nothing_through"]
-    assert not targets_met(metrics | {"body_depth_final_ndem_m": 1e-4}, targets)["nothing_through"]
+    assert targets_met(metrics | {"body_depth_final_ndem_m": 3e-4}, TARGETS)["nothing_through"]
+    assert not targets_met(metrics | {"body_depth_final_ndem_m": 1e-4}, TARGETS)["nothing_through"]
+
+
+def test_skills_are_each_figure_over_the_twins():
+    run = {"surface_accuracy": 0.72, "force_lp_rel_rmse": 0.08, "final_emd_m": 0.02}
+    twin = {"surface_accuracy": 0.9, "force_lp_rel_rmse": 0.1, "final_emd_m": 0.0}
+    got = skills(run, twin)
+    assert set(got) == {f"{k}_skill" for k in FIGURES}
+    assert got["surface_accuracy_skill"] == pytest.approx(0.8)
+    assert got["force_lp_rel_rmse_skill"] == pytest.approx(0.8)
+    assert got["final_emd_m_skill"] is None  # the twin's is 0: no ratio
+    assert got["height_accuracy_skill"] is None  # measured by neither
+
+
+def test_gaussian_smoothing_keeps_a_plane_and_spreads_a_step_over_sigma():
+    plane = np.full((40, 10), 0.3)
+    np.testing.assert_allclose(gaussian_smooth(plane, 3.0), plane)  # edges extended: no sag
+    step = np.zeros((60, 4))
+    step[30:] = 1.0
+    smooth = gaussian_smooth(step, 4.0)
+    np.testing.assert_allclose(smooth[:, 0], smooth[:, 3])  # along x only
+    assert smooth[0, 0] == pytest.approx(0.0) and smooth[-1, 0] == pytest.approx(1.0)
+    # the step sits between cells 29 and 30: half its height there, Φ(±1) one σ away
+    assert (smooth[29, 0] + smooth[30, 0]) / 2 == pytest.approx(0.5, abs=1e-9)
+    assert smooth[34, 0] == pytest.approx(0.5 * (1 + math.erf(4.5 / 4 / math.sqrt(2))), abs=0.01)
+    np.testing.assert_array_equal(gaussian_smooth(step, 0.0), step)
+
+
+def _layer(dz: float = 0.0, dx: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """One layer of spheres (r 0.05 m) on a 0.05 m lattice over a 2 m × 1 m bed (overlapping:
+    no cell between them is bare ground), shifted."""
+    x, y = np.meshgrid(np.arange(0.025, 2.0, 0.05), np.arange(-0.475, 0.5, 0.05), indexing="ij")
+    pos = np.column_stack([x.ravel() + dx, y.ravel(), np.full(x.size, 0.05 + dz)])
+    return pos, np.full(len(pos), 0.05)
+
+
+def test_the_smoothed_surface_follows_a_lift_exactly_and_hides_the_grain_scale():
+    pos, radii = _layer()
+    base = smoothed_surface(pos, radii, 2.0, 1.0, sigma=0.1)
+    assert base.shape == (80, 40)  # cells of σ/4
+    np.testing.assert_allclose(smoothed_surface(*_layer(dz=0.02), 2.0, 1.0, 0.1), base + 0.02)
+    # the spheres' bumps (15 mm) all but vanish at σ = one diameter
+    raw = smoothed_surface(pos, radii, 2.0, 1.0, sigma=0.004)
+    assert np.ptp(raw) > 0.01 and np.ptp(base) < 0.1 * np.ptp(raw)
+
+
+def test_surface_accuracy_of_surfaces_shifted_by_known_amounts():
+    """A run that lifts the bed 30 mm against NDEM's 40 mm is 75 % accurate; one that lifts it
+    50 mm, 75 % too; one that moves nothing, 0."""
+    bed = smoothed_surface(*_layer(), 2.0, 1.0, 0.1)
+    ndem = smoothed_surface(*_layer(dz=0.04), 2.0, 1.0, 0.1)
+    for dz, accuracy in ((0.04, 1.0), (0.03, 0.75), (0.05, 0.75), (0.0, 0.0)):
+        run = smoothed_surface(*_layer(dz=dz), 2.0, 1.0, 0.1)
+        assert height_accuracy(run, ndem, bed) == pytest.approx(accuracy, abs=1e-9)
+
+
+def test_low_passed_forces_that_differ_only_faster_than_the_window_agree():
+    dt, t = 0.01, np.arange(300) * 0.01
+    force = 2.0 + np.sin(2 * np.pi * t / 2.0)  # a 2 s swell
+    chatter = force + 0.5 * np.sin(2 * np.pi * t / 0.05)  # plus a 0.05 s chatter
+    assert relative_rmse(chatter, force) > 0.1
+    lp, lp_ref = low_pass(chatter, dt, 0.1), low_pass(force, dt, 0.1)
+    # whole periods of the chatter in every full window (the ends average what they hold)
+    assert relative_rmse(lp[5:-5], lp_ref[5:-5]) < 1e-12
+    # a 0.1 s period averaged over a 0.1 s window leaves its mean
+    np.testing.assert_allclose(low_pass(2 + np.sin(20 * np.pi * t), dt, 0.1)[5:-5], 2.0, atol=1e-12)
 
 
 def test_a_run_against_itself_has_no_error(ndem_run):
     tmp, config = ndem_run
     store, bed, state = tmp / "ndem.zarr", tmp / "bed.npz", tmp / "ndem.npz"
-    m, series = compare_point(store, store, bed, state, state, config)
+    m, series = compare_point(store, store, bed, state, state, config, twin=(store, state))
     assert m["force_x_rel_rmse"] == 0.0 and m["velocity_rel_l2"] == 0.0
     assert m["density_rel_l2"] == 0.0 and m["final_emd_m"] == 0.0
-    assert m["height_accuracy"] == 1.0 and m["loop_speedup"] == 1.0
+    assert m["force_lp_rel_rmse"] == 0.0 and m["force_mean_rel_err"] == 0.0
+    assert m["height_accuracy"] == 1.0 and m["surface_accuracy"] == 1.0
+    assert m["loop_speedup"] == 1.0
     assert m["left_bed"] == m["left_bed_ndem"] and m["job_speedup"] is None
     assert series["force_ndem"].shape == (m["rows"], 3)
     np.testing.assert_array_equal(series["height_ndem"], series["height_reduced"])
+    # the "twin" is NDEM too: its figures are the run's, accuracy skills 1, errors 0 over 0 none
+    assert all(m[f"twin_{k}"] == m[k] for k in FIGURES)
+    assert m["surface_accuracy_skill"] == 1.0 and m["height_accuracy_skill"] == 1.0
+    assert m["force_lp_rel_rmse_skill"] is None
+    np.testing.assert_array_equal(series["force_twin"], series["force_ndem"])
+    bare, _ = compare_point(store, store, bed, state, state, config)
+    assert not any(k.startswith("twin_") or k.endswith("_skill") for k in bare)
 
 
 def test_different_grain_counts_are_refused(ndem_run, tmp_path):

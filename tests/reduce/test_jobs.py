@@ -44,11 +44,13 @@ def test_ndem_compared_with_itself_meets_the_accuracy_targets_only(ndem_run, tmp
     config = load_config({**REDUCED_RUN, "sweep": {**SWEEP, "interpolation": [held]}})
     point = next(p for p in P.sweep_points(config) if p.role == "interpolation")
     results = tmp_path / "results"
-    for dest in (P.field_path(results, point), P.reduced_path(results, "replay", point)):
-        shutil.copytree(tmp / "ndem.zarr", dest)  # the "reduced" run is NDEM's own
+    stores = (P.field_path(results, point), P.reduced_path(results, "replay", point))
+    for dest in (*stores, P.twin_path(results, point)):
+        shutil.copytree(tmp / "ndem.zarr", dest)  # the "reduced" run and the "twin" are NDEM's own
     P.bed_path(results, "hill").parent.mkdir(parents=True)
     shutil.copy(tmp / "bed.npz", P.bed_path(results, "hill"))
-    for dest in (P.state_path(results, point), P.reduced_path(results, "replay", point, "npz")):
+    states = (P.state_path(results, point), P.reduced_path(results, "replay", point, "npz"))
+    for dest in (*states, P.twin_path(results, point, "npz")):
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(tmp / "ndem.npz", dest)
     out, plots = tmp_path / "replay.json", tmp_path / "compare"
@@ -58,9 +60,18 @@ def test_ndem_compared_with_itself_meets_the_accuracy_targets_only(ndem_run, tmp
     assert written.keys() == summary.keys() and written["overall"] == summary["overall"]
     (entry,) = summary["points"]
     assert entry["role"] == "interpolation" and entry["force_x_rel_rmse"] == 0.0
-    assert entry["targets_met"]["height_accuracy"] and entry["targets_met"]["force_rmse"]
+    assert entry["twin_surface_accuracy"] == 1.0 and entry["surface_accuracy_skill"] == 1.0
+    assert entry["targets_met"]["replay_surface_skill"]
     assert entry["targets_met"]["loop_speedup"] is False  # the same run: 1×, not 50×
     assert sorted(p.name for p in plots.iterdir()) == sorted([FOLDER_MARK, *entry["plots"]])
     assert len(entry["plots"]) == 3  # force, fields, height; no GIF
     assert summary["overall"]["interpolation"] == summary["overall"]["all"]
     assert summary["overall"]["all"]["loop_speedup"] == 1.0
+
+
+def test_the_summary_averages_every_figure_the_twins_and_the_skills():
+    from dozerlab.reduce.compare import FIGURES
+    from dozerlab.reduce.jobs import AGGREGATE
+
+    for key in FIGURES:
+        assert {key, f"twin_{key}", f"{key}_skill"} <= AGGREGATE.keys()

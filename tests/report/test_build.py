@@ -122,7 +122,9 @@ def test_the_summary_answers_the_four_questions_before_the_sections(tmp_path):
     )
     assert force.startswith("linear predicts the draft force best: force_x relative RMSE 12.5 %")
     assert evolution.startswith("ridge evolves the fields best")
-    assert reduced.startswith("ridge fields and the linear-loop force model: height accuracy")
+    assert reduced.startswith(
+        "ridge fields and the linear-loop force model: smoothed-surface accuracy 72.0 %"
+    )
     # each section opens with its verdict; beds and runs have one, outside the summary
     for section in ("sweep", "beds", "runs", "models", "dynamics", "reduced"):
         assert re.search(rf'<section id="{section}"><h2>[^<]*</h2>\n<p class="verdict">', text)

@@ -210,6 +210,14 @@ def reduced_of(dynamics_model):
     return [str(P.reduced_path(RESULTS, dynamics_model, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]
 
 
+def twins_of_held_out():
+    """The twin NDEM runs (stores and final states) of the held-out points when reduced.twin is
+    enabled, else none."""
+    if not config["reduced"]["twin"]["enabled"]:
+        return []
+    return [str(P.twin_path(RESULTS, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]
+
+
 def reduced_comparisons():
     """The comparison JSONs of the configured dynamics models (none without held-out points)."""
     return [str(P.reduced_comparison_path(RESULTS, m)) for m in config["reduced"]["dynamics_models"]] if HELD_OUT else []
@@ -226,6 +234,7 @@ def all_targets():
     targets += [str(P.dynamics_model_path(RESULTS, m)) for m in config["dynamics"]["models"]]
     targets += [str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()]
     targets += [s for m in config["reduced"]["dynamics_models"] if HELD_OUT for s in reduced_of(m)]
+    targets += twins_of_held_out()
     targets += reduced_comparisons()
     targets += [P.pattern("report"), P.pattern("report_animations")]
     return targets

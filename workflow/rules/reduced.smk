@@ -96,6 +96,7 @@ rule compare_reduced:
         reduced=lambda wc: reduced_of(wc.dynamics_model),
         ndem=[str(P.field_path(RESULTS, p)) for p in HELD_OUT],
         states=[str(P.state_path(RESULTS, p)) for p in HELD_OUT],
+        twins=twins_of_held_out(),
     output:
         json=P.pattern("reduced_comparison"),
         plots=directory(P.pattern("reduced_comparison_plots")),

@@ -29,6 +29,37 @@ rule simulate:
         " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads} > {log:q} 2>&1"
 
 
+# NDEM's floor (reduced.twin): the point's NDEM run again from the bed with every grain moved by
+# jitter_m in seeded random directions; compare_reduced measures it against NDEM as it does the
+# reduced runs.
+rule twin:
+    input:
+        canonical,
+        bed=P.pattern("bed"),
+        trajectory=P.pattern("trajectory"),
+    output:
+        store=directory(P.pattern("twin")),
+        state=P.pattern("twin_state"),
+    benchmark:
+        P.pattern("twin_benchmark")
+    log:
+        P.log_pattern("twin"),
+    threads: config["threads"]["simulate"]
+    resources:
+        **cluster.job_resources(config, "twin"),
+    params:
+        cfg=lambda wc: config_json(
+            "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
+        ),
+        jitter=config["reduced"]["twin"]["jitter_m"],
+        seed=config["reduced"]["twin"]["seed"],
+    shell:
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
+        " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth}"
+        " --jitter {params.jitter} --jitter-seed {params.seed}"
+        " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads} > {log:q} 2>&1"
+
+
 # On request only (not part of `all`): field slices, the force plot and a GIF of one store.
 rule plot_fields:
     input:

@@ -12,6 +12,7 @@ from dozerlab.cliargs import (
     add_threads,
     configure,
     labels,
+    schema_value,
 )
 
 
@@ -39,6 +40,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--plots", default=None, help="write field-slice, force and GIF plots of the run here"
+    )
+    p.add_argument(
+        "--jitter",
+        type=schema_value(("reduced", "twin", "jitter_m")),
+        default=None,
+        help="a twin run: move every grain of the bed this far (m) in a seeded random direction "
+        "first (the bounds of reduced.twin.jitter_m)",
+    )
+    p.add_argument(
+        "--jitter-seed",
+        type=schema_value(("reduced", "twin", "seed"), int),
+        default=None,
+        help="seed of the jitter's directions (default: reduced.twin.seed)",
     )
     add_labels(p)
     p.set_defaults(func=_simulate)
@@ -101,11 +115,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    if args.jitter_seed is not None and args.jitter is None:
+        raise ValueError("--jitter-seed needs --jitter (the twin's jitter in m)")
     config = configure(args)
-    from dozerlab.fields.jobs import simulate
+    from dozerlab.fields.jobs import Jitter, simulate
 
+    jitter = None
+    if args.jitter is not None:
+        seed = args.jitter_seed
+        jitter = Jitter(args.jitter, config["reduced"]["twin"]["seed"] if seed is None else seed)
     outputs = {"vtk_dir": args.vtk_dir, "plots_dir": args.plots, "state_out": args.state}
-    simulate(args.bed, args.trajectory, config, args.out, **outputs, **labels(args))
+    simulate(args.bed, args.trajectory, config, args.out, **outputs, **labels(args), jitter=jitter)
     return 0
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,15 @@ from dozerlab.runtime import OutputKind, freeze_heap, job_outputs
 from dozerlab.sweep import fmt_number, point_name
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Jitter:
+    """A twin run's start: every grain of the bed moved ``metres`` (m) in a direction drawn
+    from ``seed`` (:meth:`dozerlab.scenarios.bed.Bed.jittered`)."""
+
+    metres: float
+    seed: int
 
 
 def simulate(
@@ -35,6 +45,7 @@ def simulate(
     plots_dir: str | Path | None = None,
     log_every: int | None = None,
     state_out: str | Path | None = None,
+    jitter: Jitter | None = None,
 ) -> dict[str, float]:
     """Run NDEM along a trajectory and write the field store ``out``; return the run's metrics.
 
@@ -43,8 +54,10 @@ def simulate(
     depth). File names are never parsed for them. VTK snapshots go to ``vtk_dir`` every
     ``sampling.vtk_every`` steps (when both are set); slice and force plots of the store to
     ``plots_dir`` and to MLflow; the final particle state to ``state_out`` (a bed file,
-    ``Bed.load`` reads it) when given. The store's ``wall_time_s`` attribute is the stepping
-    loop's wall time (s). Raises :class:`DozerlabError` when the
+    ``Bed.load`` reads it) when given. With ``jitter``, the run is a twin: it starts from the
+    bed with every grain moved (:class:`Jitter`; the store's ``jitter_m`` and ``jitter_seed``
+    attributes say so; the MLflow run is ``simulate/twin/…``, rule ``twin``). The store's
+    ``wall_time_s`` attribute is the stepping loop's wall time (s). Raises :class:`DozerlabError` when the
     simulation diverges, leaving no store. Every output is checked before the run
     (:func:`~dozerlab.runtime.job_outputs`), and a run that fails leaves none of them.
     """
@@ -71,6 +84,7 @@ def simulate(
             plots_dir=plots_dir,
             log_every=log_every,
             state_out=state_out,
+            jitter=jitter,
         )
 
 
@@ -87,8 +101,11 @@ def _simulate(
     plots_dir: str | Path | None,
     log_every: int | None,
     state_out: str | Path | None,
+    jitter: Jitter | None,
 ) -> dict[str, float]:
     bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
+    if jitter is not None:
+        bed = bed.jittered(jitter.metres, jitter.seed)
     scenario = scenario or bed.scenario
     speed = speed if speed is not None else round(traj.speed, 6)
     s = config["sampling"]
@@ -108,14 +125,17 @@ def _simulate(
         "dozerlab_version": __version__,
         "config": json.dumps(config, sort_keys=True),
     }
+    if jitter is not None:
+        attrs |= {"jitter_m": jitter.metres, "jitter_seed": jitter.seed}
     params = {k: config[k] for k in ("solver", "material", "sampling", "blade")}
     point = point_name(speed, depth) if depth is not None else f"speed~{fmt_number(speed)}"
-    name = tracking.run_name("simulate", scenario, point)
+    rule = "simulate" if jitter is None else "twin"
+    name = tracking.run_name("simulate", None if jitter is None else "twin", scenario, point)
     freeze_heap()  # as the reduce job does: the two loops are timed against each other
     with tracking.job_run(
         config,
         name,
-        rule="simulate",
+        rule=rule,
         tags={"scenario": scenario, "speed": speed, "depth": depth},
         params=params,
     ) as run:

@@ -5,8 +5,13 @@ Per point (both runs start from the same settled bed and follow the same traject
 - **height accuracy** after the pass: 1 − Σ|h_red − h_ndem| / Σ|h_ndem − h_bed| over the bed's
   height field (``trajectory.subdivisions`` cells, the field the trajectory planner uses): 1 is
   NDEM's bed exactly, 0 is no better than leaving the bed as it was;
+- **smoothed surface accuracy**: the same ratio on the spheres' top surface over a lattice of
+  σ/4 cells smoothed by a Gaussian of σ = one mean grain diameter: the scale on which two NDEM
+  runs from beds a micrometre apart agree (the grain scale is their chaos);
 - **force**: relative RMSE of the pushing force (x) and of |F| over the rows the reduced loop
-  made (the NDEM warm-up rows excluded), RMSE / RMS of NDEM's;
+  made (the NDEM warm-up rows excluded), RMSE / RMS of NDEM's; the pushing force low-passed
+  over 0.1 s (a centred moving mean, :data:`FORCE_WINDOW`), its relative RMSE, and the relative
+  error of its mean over those rows;
 - **fields**: relative L2 of the velocity (mass-weighted with NDEM's density, world frame,
   sqrt(Σ ρ|v − v_ndem|²) / sqrt(Σ ρ|v_ndem|²), so empty bins count for nothing) and of the
   density, over all the reduced rows together (a per-row mean would be dominated by the rows
@@ -22,7 +27,11 @@ Per point (both runs start from the same settled bed and follow the same traject
   counts as "through"), grains outside the bed's box;
 - **speed-up**: NDEM's stepping-loop wall time over the reduced loop's (``wall_time_s``: same
   trajectory, so the same simulated time) and, when the Snakemake benchmark records exist, the
-  whole jobs' wall times.
+  whole jobs' wall times;
+- **twin and skill**: with the point's twin (NDEM from the bed with every grain moved by a
+  micrometre, ``reduced.twin``) the twin is measured against NDEM the same way, over the same
+  rows (``twin_<figure>``), and each figure's skill is the run's over the twin's
+  (``<figure>_skill``: accuracy / twin's accuracy, error / twin's error; :data:`FIGURES`).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from __future__ import annotations
 import csv
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -219,6 +229,167 @@ def job_seconds(benchmark: str | Path | None) -> float | None:
     return float(rows[0]["s"]) if rows else None
 
 
+#: The figures measured against NDEM, for a reduced run and for the twin alike: an accuracy
+#: (1 is NDEM's result exactly, higher is better) or an error (0 is NDEM's, lower is better).
+#: Each has a skill: the run's figure over the twin's (NDEM's own reproducibility).
+FIGURES = {
+    "height_accuracy": "accuracy",
+    "surface_accuracy": "accuracy",
+    "force_x_rel_rmse": "error",
+    "force_lp_rel_rmse": "error",
+    "force_mean_rel_err": "error",
+    "velocity_rel_l2": "error",
+    "density_rel_l2": "error",
+    "final_emd_m": "error",
+}
+#: The window (s) of the low-passed pushing force: the scale NDEM's force reproduces.
+FORCE_WINDOW = 0.1
+
+
+@dataclass(frozen=True)
+class Reference:
+    """NDEM's run of a point, read once for every run measured against it: the bed and NDEM's
+    final state, their grain-scale height fields and smoothed surfaces (m), the force rows
+    (T, 3) N, the fields (velocity (T, Nx, Ny, Nz, 3) m/s, density (T, Nx, Ny, Nz) kg/m³), the
+    rows' times and period (s), the stepping loop's wall time (s) and the store's sizes."""
+
+    bed: Any
+    end: Any
+    height_x: np.ndarray
+    height_bed: np.ndarray
+    height_ndem: np.ndarray
+    surface_bed: np.ndarray
+    surface_ndem: np.ndarray
+    force: np.ndarray
+    velocity: np.ndarray
+    density: np.ndarray
+    time: np.ndarray
+    row_dt: float
+    wall_time_s: float | None
+    sizes: dict[str, int]
+    subdivisions: tuple[int, int]
+    moved_radii: float
+
+    @property
+    def sigma(self) -> float:
+        """The smoothed surface's Gaussian σ (m): one mean grain diameter."""
+        return surface_sigma(self.bed.radii)
+
+
+def surface_sigma(radii: np.ndarray) -> float:
+    """σ (m) of the smoothed surface: one mean grain diameter of ``radii`` (m)."""
+    return 2.0 * float(np.mean(radii))
+
+
+def reference(
+    ndem_store: str | Path, bed_path: str | Path, ndem_state: str | Path, config: Mapping[str, Any]
+) -> Reference:
+    """NDEM's run of a point (its store and final state) and the bed it started from."""
+    from dozerlab.fields.store import open_store
+    from dozerlab.scenarios.bed import Bed
+    from dozerlab.scenarios.heightfield import height_field
+
+    nd = open_store(ndem_store)
+    bed, end = Bed.load(bed_path), Bed.load(ndem_state)
+    if bed.count != end.count:
+        raise DozerlabError(
+            f"different grain counts: {ndem_state} holds {end.count}, {bed_path} {bed.count}"
+        )
+    nx, ny = (int(n) for n in config["trajectory"]["subdivisions"])
+    sub = (nx, ny)
+    hx, h0 = height_field(bed.positions, bed.radii, bed.length, bed.width, sub)
+    _, hn = height_field(end.positions, bed.radii, bed.length, bed.width, sub)
+    sigma = surface_sigma(bed.radii)
+    time = nd["time"].values
+    return Reference(
+        bed=bed,
+        end=end,
+        height_x=hx,
+        height_bed=h0,
+        height_ndem=hn,
+        surface_bed=smoothed_surface(bed.positions, bed.radii, bed.length, bed.width, sigma),
+        surface_ndem=smoothed_surface(end.positions, bed.radii, bed.length, bed.width, sigma),
+        force=nd["force"].values.astype(np.float64),
+        velocity=nd["velocity"].values,
+        density=nd["density"].values,
+        time=time,
+        row_dt=float(np.median(np.diff(time))) if len(time) > 1 else 1.0,
+        wall_time_s=nd.attrs.get("wall_time_s"),
+        sizes={str(k): int(v) for k, v in nd.sizes.items()},
+        subdivisions=sub,
+        moved_radii=float(config["reduced"]["moved_radii"]),
+    )
+
+
+def against_ndem(
+    ref: Reference, store: Any, end: Any, rows: slice
+) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """The :data:`FIGURES` of one run (its store, an xarray Dataset aligned row by row with
+    NDEM's, and its final state, a ``Bed``) against NDEM's (``ref``), the force and field
+    figures over ``rows``; and its series: ``force`` (T, 3) N, ``velocity_error`` /
+    ``density_error`` (T,), ``height`` (Nx, Ny) m, ``moved`` (the grains either run moved)."""
+    from dozerlab.scenarios.heightfield import height_field
+
+    bed = ref.bed
+    if end.count != bed.count:
+        raise DozerlabError(
+            f"different grain counts: a final state holds {end.count}, the bed {bed.count}"
+        )
+    _, h = height_field(end.positions, bed.radii, bed.length, bed.width, ref.subdivisions)
+    surface = smoothed_surface(end.positions, bed.radii, bed.length, bed.width, ref.sigma)
+    force = store["force"].values.astype(np.float64)
+    velocity, density = store["velocity"].values, store["density"].values
+    ev, er = field_errors(velocity, density, ref.velocity, ref.density)
+    lp, lp_ndem = (low_pass(f[:, 0], ref.row_dt, FORCE_WINDOW) for f in (force, ref.force))
+    mean_ndem = float(ref.force[rows, 0].mean())
+    moved_r = ref.moved_radii * bed.radii
+    moved = (np.linalg.norm(ref.end.positions - bed.positions, axis=1) > moved_r) | (
+        np.linalg.norm(end.positions - bed.positions, axis=1) > moved_r
+    )
+    a, b = ref.end.positions[moved], end.positions[moved]
+    figures = {
+        "height_accuracy": height_accuracy(h, ref.height_ndem, ref.height_bed),
+        "surface_accuracy": height_accuracy(surface, ref.surface_ndem, ref.surface_bed),
+        "force_x_rel_rmse": relative_rmse(force[rows, 0], ref.force[rows, 0]),
+        "force_rel_rmse": relative_rmse(
+            np.linalg.norm(force[rows], axis=1), np.linalg.norm(ref.force[rows], axis=1)
+        ),
+        "force_lp_rel_rmse": relative_rmse(lp[rows], lp_ndem[rows]),
+        "force_mean_rel_err": (
+            abs(float(force[rows, 0].mean()) - mean_ndem) / abs(mean_ndem)
+            if mean_ndem != 0
+            else float("nan")
+        ),
+        "velocity_rel_l2": _global_l2(velocity[rows], ref.velocity[rows], ref.density[rows]),
+        "density_rel_l2": relative_l2(density[rows], ref.density[rows]),
+        "moved_grains": int(moved.sum()),
+        "final_emd_m": sliced_emd(a, b),
+        "final_mean_distance_m": float(np.linalg.norm(a - b, axis=1).mean()) if len(a) else 0.0,
+    }
+    series = {
+        "force": force,
+        "velocity_error": ev,
+        "density_error": er,
+        "height": h,
+        "moved": moved,
+    }
+    return figures, series
+
+
+def skills(run: Mapping[str, Any], twin: Mapping[str, Any]) -> dict[str, float | None]:
+    """``<figure>_skill``: each of :data:`FIGURES` of a run over the twin's (model accuracy /
+    twin accuracy, model error / twin error); None where either is missing, not finite, or the
+    twin's is 0."""
+    out: dict[str, float | None] = {}
+    for key in FIGURES:
+        a, b = run.get(key), twin.get(key)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) or b == 0:
+            out[f"{key}_skill"] = None
+        else:
+            out[f"{key}_skill"] = float(a) / float(b)
+    return out
+
+
 def compare_point(
     ndem_store: str | Path,
     reduced_store: str | Path,
@@ -229,43 +400,34 @@ def compare_point(
     *,
     ndem_benchmark: str | Path | None = None,
     reduced_benchmark: str | Path | None = None,
+    twin: tuple[str | Path, str | Path] | None = None,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The metrics of one point (module doc) and the series its plots draw.
 
+    ``twin``: the point's twin NDEM run (its store and final state), measured against NDEM over
+    the same rows: ``twin_<figure>`` and ``<figure>_skill`` (:func:`skills`) join the metrics.
+
     Returns (metrics, series): series holds ``time`` (T,), ``force_ndem``/``force_reduced``
-    (T, 3) N, ``velocity_error``/``density_error`` (T,), ``height_x`` (Nx,) and the y-mean
-    height profiles ``height_bed``/``height_ndem``/``height_reduced`` (Nx,) m, ``warmup`` rows.
+    (and ``force_twin``) (T, 3) N, ``force_window`` (s), ``velocity_error``/``density_error``
+    (T,), ``height_x`` (Nx,) and the y-mean height profiles ``height_bed``/``height_ndem``/
+    ``height_reduced`` (and ``height_twin``) (Nx,) m, ``warmup`` rows.
     """
     from dozerlab.fields.store import open_store
     from dozerlab.scenarios.bed import Bed
-    from dozerlab.scenarios.heightfield import height_field
 
-    nd, rd = open_store(ndem_store), open_store(reduced_store)
-    if nd.sizes != rd.sizes:
+    ref = reference(ndem_store, bed_path, ndem_state, config)
+    rd = open_store(reduced_store)
+    if ref.sizes != {str(k): int(v) for k, v in rd.sizes.items()}:
         raise DozerlabError(
-            f"{reduced_store} ({dict(rd.sizes)}) is not aligned with {ndem_store} ({dict(nd.sizes)})"
+            f"{reduced_store} ({dict(rd.sizes)}) is not aligned with {ndem_store} ({ref.sizes})"
         )
     warm = int(rd.attrs.get("warmup_rows", 0))
-    bed, end_n, end_r = Bed.load(bed_path), Bed.load(ndem_state), Bed.load(reduced_state)
-    if not (bed.count == end_n.count == end_r.count):
-        raise DozerlabError("the bed and the two final states hold different grain counts")
-    sub = config["trajectory"]["subdivisions"]
-    hx, h0 = height_field(bed.positions, bed.radii, bed.length, bed.width, sub)
-    _, hn = height_field(end_n.positions, bed.radii, bed.length, bed.width, sub)
-    _, hr = height_field(end_r.positions, bed.radii, bed.length, bed.width, sub)
-    fn, fr = nd["force"].values.astype(np.float64), rd["force"].values.astype(np.float64)
-    ev, er = field_errors(
-        rd["velocity"].values, rd["density"].values, nd["velocity"].values, nd["density"].values
-    )
-    moved_r = float(config["reduced"]["moved_radii"]) * bed.radii
-    moved = (np.linalg.norm(end_n.positions - bed.positions, axis=1) > moved_r) | (
-        np.linalg.norm(end_r.positions - bed.positions, axis=1) > moved_r
-    )
-    a, b = end_n.positions[moved], end_r.positions[moved]
-    final_bodies = _bodies_at(bed, config, rd["blade_position"].values[-1])
-    wall_n, wall_r = nd.attrs.get("wall_time_s"), rd.attrs.get("wall_time_s")
-    job_n, job_r = job_seconds(ndem_benchmark), job_seconds(reduced_benchmark)
     tail = slice(warm, None)
+    bed, end_r = ref.bed, Bed.load(reduced_state)
+    figures, run = against_ndem(ref, rd, end_r, tail)
+    final_bodies = _bodies_at(bed, config, rd["blade_position"].values[-1])
+    wall_n, wall_r = ref.wall_time_s, rd.attrs.get("wall_time_s")
+    job_n, job_r = job_seconds(ndem_benchmark), job_seconds(reduced_benchmark)
     metrics: dict[str, Any] = {
         "scenario": rd.attrs["scenario"],
         "speed": rd.attrs["speed"],
@@ -274,27 +436,15 @@ def compare_point(
         "force_model": rd.attrs.get("force_model"),
         "rows": int(rd.sizes["time"]),
         "warmup_rows": warm,
-        "height_accuracy": height_accuracy(hr, hn, h0),
-        "force_x_rel_rmse": relative_rmse(fr[tail, 0], fn[tail, 0]),
-        "force_rel_rmse": relative_rmse(
-            np.linalg.norm(fr[tail], axis=1), np.linalg.norm(fn[tail], axis=1)
-        ),
-        "velocity_rel_l2": float(
-            _global_l2(
-                rd["velocity"].values[tail], nd["velocity"].values[tail], nd["density"].values[tail]
-            )
-        ),
-        "density_rel_l2": relative_l2(rd["density"].values[tail], nd["density"].values[tail]),
-        "moved_grains": int(moved.sum()),
-        "final_emd_m": sliced_emd(a, b),
-        "final_mean_distance_m": float(np.linalg.norm(a - b, axis=1).mean()) if len(a) else 0.0,
+        **figures,
+        "surface_sigma_m": ref.sigma,
         "max_overlap_loop": float(rd.attrs.get("max_overlap", np.nan)),
         "max_overlap_final": largest_overlap(end_r.positions, bed.radii),
-        "max_overlap_final_ndem": largest_overlap(end_n.positions, bed.radii),
+        "max_overlap_final_ndem": largest_overlap(ref.end.positions, bed.radii),
         "body_depth_final_m": body_penetration(end_r.positions, bed.radii, final_bodies),
-        "body_depth_final_ndem_m": body_penetration(end_n.positions, bed.radii, final_bodies),
+        "body_depth_final_ndem_m": body_penetration(ref.end.positions, bed.radii, final_bodies),
         "left_bed": outside_box(end_r.positions, bed.length, bed.width),
-        "left_bed_ndem": outside_box(end_n.positions, bed.length, bed.width),
+        "left_bed_ndem": outside_box(ref.end.positions, bed.length, bed.width),
         "loop_wall_s": wall_r,
         "ndem_loop_wall_s": wall_n,
         "loop_speedup": wall_n / wall_r if wall_n and wall_r else None,
@@ -304,33 +454,57 @@ def compare_point(
         "phase_ms": json.loads(rd.attrs.get("phase_ms", "{}")),
     }
     series = {
-        "time": nd["time"].values,
-        "force_ndem": fn,
-        "force_reduced": fr,
-        "velocity_error": ev,
-        "density_error": er,
-        "height_x": hx,
-        "height_bed": h0.mean(axis=1),
-        "height_ndem": hn.mean(axis=1),
-        "height_reduced": hr.mean(axis=1),
+        "time": ref.time,
+        "force_ndem": ref.force,
+        "force_reduced": run["force"],
+        "force_window": np.array(FORCE_WINDOW),
+        "velocity_error": run["velocity_error"],
+        "density_error": run["density_error"],
+        "height_x": ref.height_x,
+        "height_bed": ref.height_bed.mean(axis=1),
+        "height_ndem": ref.height_ndem.mean(axis=1),
+        "height_reduced": run["height"].mean(axis=1),
         "warmup": np.array(warm),
     }
+    if twin is not None:
+        td = open_store(twin[0])
+        if ref.sizes != {str(k): int(v) for k, v in td.sizes.items()}:
+            raise DozerlabError(
+                f"{twin[0]} ({dict(td.sizes)}) is not aligned with {ndem_store} ({ref.sizes})"
+            )
+        twin_figures, twin_run = against_ndem(ref, td, Bed.load(twin[1]), tail)
+        metrics |= {f"twin_{k}": v for k, v in twin_figures.items()}
+        metrics |= skills(figures, twin_figures)
+        series |= {"force_twin": twin_run["force"], "height_twin": twin_run["height"].mean(axis=1)}
     return metrics, series
 
 
-def targets_met(metrics: Mapping[str, Any], targets: Mapping[str, float]) -> dict[str, bool | None]:
-    """Which of ``reduced.targets`` one point meets (None where the figure is missing)."""
+def targets_met(
+    metrics: Mapping[str, Any], targets: Mapping[str, float], *, replay: bool = False
+) -> dict[str, bool | None]:
+    """Which of ``reduced.targets`` one point meets (None where the figure is missing, as the
+    skills are without a twin). ``replay``: the run is the replay control (NDEM's own fields),
+    held to ``replay_surface_skill``; a learned model's run to ``surface_skill`` and
+    ``force_skill``."""
 
     def check(value: Any, ok: Any) -> bool | None:
         if value is None or (isinstance(value, float) and not np.isfinite(value)):
             return None
         return bool(ok(value))
 
-    return {
-        "height_accuracy": check(
-            metrics["height_accuracy"], lambda v: v >= targets["height_accuracy"]
-        ),
-        "force_rmse": check(metrics["force_x_rel_rmse"], lambda v: v <= targets["force_rmse"]),
+    surface = metrics.get("surface_accuracy_skill")
+    if replay:
+        skill = {
+            "replay_surface_skill": check(surface, lambda v: v >= targets["replay_surface_skill"])
+        }
+    else:
+        skill = {
+            "surface_skill": check(surface, lambda v: v >= targets["surface_skill"]),
+            "force_skill": check(
+                metrics.get("force_lp_rel_rmse_skill"), lambda v: v <= targets["force_skill"]
+            ),
+        }
+    return skill | {
         "loop_speedup": check(metrics["loop_speedup"], lambda v: v >= targets["loop_speedup"]),
         "job_speedup": check(metrics["job_speedup"], lambda v: v >= targets["job_speedup"]),
         # after projection: the final state's figure also holds grains the loop never touched,

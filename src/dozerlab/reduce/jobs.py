@@ -34,12 +34,22 @@ COMPARISON_JSON = OutputKind(
 )
 #: ``compare-reduced``'s plots and animations: a folder built whole.
 COMPARISON_PLOTS = marked_folder("a dozerlab folder of reduced-run comparisons", "compare-plots")
+#: The figures measured against NDEM (dozerlab.reduce.compare.FIGURES), the twin's and the skills:
+#: means over the points.
+_FIGURES = (
+    "height_accuracy",
+    "surface_accuracy",
+    "force_x_rel_rmse",
+    "force_lp_rel_rmse",
+    "force_mean_rel_err",
+    "velocity_rel_l2",
+    "density_rel_l2",
+    "final_emd_m",
+)
 AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
-    "height_accuracy": np.mean,
-    "force_x_rel_rmse": np.mean,
-    "velocity_rel_l2": np.mean,
-    "density_rel_l2": np.mean,
-    "final_emd_m": np.mean,
+    **dict.fromkeys(_FIGURES, np.mean),
+    **{f"twin_{k}": np.mean for k in _FIGURES},
+    **{f"{k}_skill": np.mean for k in _FIGURES},
     "max_overlap_loop": np.max,
     "max_overlap_final": np.max,
     "body_depth_final_m": np.max,
@@ -214,7 +224,9 @@ def compare_job(
 
     The JSON holds ``points`` (one entry per point: its role, metrics and which targets it
     meets, ``reduced.targets``), ``overall`` (per role and ``all``: means of the errors, worst
-    overlaps, least speed-ups) and ``targets``. Logged as an MLflow run with the plots.
+    overlaps, least speed-ups) and ``targets``. With ``reduced.twin.enabled`` each point's twin
+    NDEM run (``results/twins/…``) is measured too: the twin's figures and the skills
+    (:func:`dozerlab.reduce.compare.skills`). Logged as an MLflow run with the plots.
     """
     check_name(dynamics_model, "--dynamics-model")
     with job_outputs(("--out", out, COMPARISON_JSON), ("--plots", plots, COMPARISON_PLOTS)):
@@ -238,6 +250,7 @@ def _compare(
     if not held_out:
         raise DozerlabError("the config's sweep has no held-out points to compare on")
     targets = config["reduced"]["targets"]
+    twins = bool(config["reduced"]["twin"]["enabled"])
     entries: list[dict[str, Any]] = []
     with tracking.tracked_run(
         tracking.run_name("compare", dynamics_model),
@@ -251,6 +264,7 @@ def _compare(
             for point in held_out:
                 ndem_store = P.field_path(results, point)
                 reduced_store = P.reduced_path(results, dynamics_model, point)
+                twin = (P.twin_path(results, point), P.twin_path(results, point, "npz"))
                 metrics, series = compare_point(
                     ndem_store,
                     reduced_store,
@@ -260,6 +274,7 @@ def _compare(
                     config,
                     ndem_benchmark=P.simulate_benchmark_path(results, point),
                     reduced_benchmark=P.reduce_benchmark_path(results, dynamics_model, point),
+                    twin=twin if twins else None,
                 )
                 stem = f"{point.scenario}_{point.name}"
                 files = [
@@ -279,7 +294,10 @@ def _compare(
                     {
                         "role": point.role,
                         **metrics,
-                        "targets_met": targets_met(metrics, targets),
+                        # replay (reduce.models.REPLAY, which imports torch): NDEM's own fields
+                        "targets_met": targets_met(
+                            metrics, targets, replay=dynamics_model == "replay"
+                        ),
                         "plots": [f.name for f in files],
                     }
                 )

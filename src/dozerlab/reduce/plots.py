@@ -31,24 +31,45 @@ def _title(m: Mapping) -> str:
 
 
 def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
-    """Pushing force (x) and |F| of both runs over time, given in N and drawn in kN; the NDEM
-    warm-up shaded."""
+    """Pushing force (x) and |F| of both runs over time, given in N and drawn in kN, with the
+    pushing force low-passed over ``force_window`` s (dashed) of both and, where the series hold
+    it, of NDEM's twin; the NDEM warm-up shaded."""
+    from dozerlab.reduce.compare import low_pass
+
     fig = Figure(figsize=(9, 4.5), layout="constrained")
     ax = fig.add_subplot()
     t, warm = series["time"], int(series["warmup"])
-    for key, style, label in (("force_ndem", "k-", "NDEM"), ("force_reduced", "C3-", "reduced")):
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    window = float(series["force_window"])
+    runs = [("force_ndem", "k", "NDEM"), ("force_reduced", "C3", "reduced")]
+    if "force_twin" in series:
+        runs.append(("force_twin", "C0", "NDEM's twin"))
+    for key, colour, label in runs:
         force = series[key] / 1000.0
-        ax.plot(t, force[:, 0], style, lw=1.2, label=f"{label} force x")
-        ax.plot(t, np.linalg.norm(force, axis=1), style, lw=0.6, alpha=0.5, label=f"{label} |F|")
+        if key != "force_twin":
+            ax.plot(t, force[:, 0], color=colour, lw=1.0, label=f"{label} force x")
+            ax.plot(t, np.linalg.norm(force, axis=1), color=colour, lw=0.6, alpha=0.4)
+        ax.plot(
+            t,
+            low_pass(force[:, 0], dt, window),
+            color=colour,
+            ls="--",
+            lw=1.6,
+            label=f"{label} force x over {window:g} s",
+        )
     if warm:
         ax.axvspan(t[0], t[warm - 1], color="0.85", label="NDEM warm-up")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("force on the blade (kN)")
+    ax.set_ylabel("force on the blade (kN); faint: |F|")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=3)
-    ax.set_title(
-        f"{_title(metrics)}: force x rel. RMSE {metrics['force_x_rel_rmse']:.1%}", fontsize=10
-    )
+    title = f"{_title(metrics)}: force x rel. RMSE {metrics['force_x_rel_rmse']:.1%}"
+    lp = metrics.get("force_lp_rel_rmse")
+    if lp is not None:
+        title += f", low-passed {lp:.1%}"
+        if (twin := metrics.get("twin_force_lp_rel_rmse")) is not None:
+            title += f" (the twin's {twin:.1%})"
+    ax.set_title(title, fontsize=10)
     return _save(fig, path)
 
 
@@ -76,6 +97,8 @@ def plot_height(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | 
     ax.plot(x, series["height_bed"], color="0.6", label="bed before")
     ax.plot(x, series["height_ndem"], "k", label="NDEM after")
     ax.plot(x, series["height_reduced"], "C3--", label="reduced after")
+    if "height_twin" in series:
+        ax.plot(x, series["height_twin"], "C0:", label="NDEM's twin after")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("bed height, mean over y (m)")
     ax.grid(alpha=0.3)

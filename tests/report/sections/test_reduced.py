@@ -1,6 +1,9 @@
 """The reduced-simulation section: per dynamics model its table with the targets, per point
 its plots and animation."""
 
+import json
+import re
+
 from dozerlab.config import load_config
 from dozerlab.report.sections import reduced
 from tests.helpers import SMALL_SWEEP, reduced_json, report_context
@@ -16,16 +19,52 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         text.replace("&#x27;", "'")
     )
     assert (
-        "targets: height accuracy ≥ 80%, force x rel. RMSE ≤ 25%, loop ≥ 50×, job ≥ 5×, "
+        "targets: smoothed-surface skill ≥ 0.95, loop ≥ 40×, job ≥ 10×, "
         "overlap ≤ 10% of a radius, nothing left the bed" in text
     )
-    cells = (
-        "<td>90.0</td><td>30.0</td><td>20.0</td><td>10.0</td><td>4.2</td><td>5.0</td>"
-        "<td>0</td><td>62.0</td><td>–</td>"
-    )
-    assert cells in text
+    # on the scales NDEM reproduces: each figure, the twin's, the skill
+    headings = re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", text)
+    assert headings[:11] == [
+        "point",
+        "group",
+        "smoothed-surface accuracy (%)",
+        "twin (%)",
+        "skill (×)",
+        "low-passed force x rel. RMSE (%)",
+        "twin (%)",
+        "skill (×)",
+        "mean force x rel. error (%)",
+        "twin (%)",
+        "skill (×)",
+    ]
+    assert table_cells(text, 0)[2:] == [
+        "72.0",
+        "90.0",
+        "0.80",
+        "8.0",
+        "10.0",
+        "0.80",
+        "2.0",
+        "1.0",
+        "2.00",
+    ]
+    # the grain scale and the fields, beside the twin's
+    assert table_cells(text, 1)[2:] == [
+        "90.0",
+        "75.0",
+        "30.0",
+        "20.0",
+        "20.0",
+        "30.0",
+        "10.0",
+        "5.0",
+        "4.2",
+        "1",
+    ]
+    assert table_cells(text, 2)[2:] == ["5.0", "0", "62.0", "–"]
     assert (
-        "<summary>hill: speed 0.75 m/s, depth 0.1 m — targets missed: force_rmse</summary>" in text
+        "<summary>hill: speed 0.75 m/s, depth 0.1 m — targets missed: replay_surface_skill</summary>"
+        in text
     )
     assert "data:image/png;base64," in text and "data:image/gif" not in text
     assert text.count("<figure>") == 2  # the listed plot that is not there is left out
@@ -33,7 +72,33 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
     name = "reduced_replay_hill_speed~0.75_depth~0.1.gif"
     assert f'<img src="animations/{name}"' in text
     assert (tmp_path / "report" / "animations" / name).read_bytes() == b"GIF89a"
-    assert "<p>replay fields and the linear-loop force model: height accuracy 90.0 %" in text
+    assert (
+        "<p>replay fields and the linear-loop force model: smoothed-surface accuracy 72.0 % (the "
+        "twin&#x27;s 90.0 %, skill 0.80)" in text
+    )
+
+
+def table_cells(text: str, table: int) -> list[str]:
+    """The cells of the first data row of the section's ``table``-th table."""
+    body = re.findall(r"<table>(.*?)</table>", text, re.S)[table]
+    row = next(r for r in re.findall(r"<tr>(.*?)</tr>", body) if "<td" in r)
+    return re.findall(r"<td[^>]*>(.*?)</td>", row)
+
+
+def test_without_twins_the_tables_hold_the_figures_alone(tmp_path):
+    reduced_json(tmp_path, "ridge")
+    path = tmp_path / "reduced" / "ridge.json"
+    doc = json.loads(path.read_text())
+    doc["points"] = [
+        {k: v for k, v in p.items() if not k.startswith("twin_") and not k.endswith("_skill")}
+        for p in doc["points"]
+    ]
+    path.write_text(json.dumps(doc))
+    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
+    text = reduced.render(report_context(cfg, tmp_path))
+    assert "twin (%)" not in text and "no twin runs" in text
+    assert table_cells(text, 0)[2:] == ["72.0", "8.0", "2.0"]
+    assert "smoothed-surface accuracy 72.0 %, low-passed" in text
 
 
 def test_the_verdict_is_the_learned_models_then_the_replay_control(tmp_path):
@@ -41,14 +106,19 @@ def test_the_verdict_is_the_learned_models_then_the_replay_control(tmp_path):
     assert reduced.verdict(report_context(cfg, tmp_path)) is None
     reduced_json(tmp_path, "replay")
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "replay fields and the linear-loop force model: height accuracy 90.0 %, draft force rel. "
-        "RMSE 30.0 %, loop 62.0× as fast as NDEM's (mean of 1 held-out point); every target met "
-        "on 0 of 1 (missed: force_rmse)."
+        "replay fields and the linear-loop force model: smoothed-surface accuracy 72.0 % (the "
+        "twin's 90.0 %, skill 0.80), low-passed draft force rel. RMSE 8.0 % (the twin's 10.0 %, "
+        "skill 0.80), grain-scale height accuracy 90.0 %, loop 62.0× as fast as NDEM's (mean of 1 "
+        "held-out point); targets met on every point: loop_speedup; missed: "
+        "replay_surface_skill (1 of 1)."
     )
     reduced_json(tmp_path, "ridge")
     verdict = reduced.verdict(report_context(cfg, tmp_path))
-    assert verdict.startswith("ridge fields and the linear-loop force model: height accuracy")
+    assert verdict.startswith("ridge fields and the linear-loop force model: smoothed-surface")
+    assert "targets met on every point: force_skill, loop_speedup; missed: surface_skill" in verdict
     assert verdict.endswith(
-        "Control, replay (NDEM's own fields: the loop's own error): height accuracy 90.0 %, draft "
-        "force rel. RMSE 30.0 %."
+        "Control, replay (NDEM's own fields: the loop's own error): smoothed-surface accuracy "
+        "72.0 % (the twin's 90.0 %, skill 0.80), low-passed draft force rel. RMSE 8.0 % (the "
+        "twin's 10.0 %, skill 0.80); targets met on every point: loop_speedup; missed: "
+        "replay_surface_skill (1 of 1)."
     )
