@@ -17,6 +17,7 @@ include: "workflow/rules/learn.smk"
 include: "workflow/rules/dynamics.smk"
 include: "workflow/rules/reduced.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/adaptive.smk"
 
 
 localrules:
