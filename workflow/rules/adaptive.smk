@@ -146,7 +146,15 @@ rule adaptive_curve:
         " --results {params.results:q} --out {output.csv:q} --plots {output.plots:q} --threads {threads} > {log:q} 2>&1"
 
 
+def adaptive_report_inputs():
+    """What the report shows of an adaptive sweep: its learning curve (nothing without one)."""
+    return [P.pattern("learning_curve"), P.pattern("learning_curve_plots")] if ADAPTIVE["enabled"] else []
+
+
 def adaptive_targets():
-    """What rule all builds for an adaptive sweep: every round's record and the learning curve."""
+    """What rule all builds for an adaptive sweep: every round's record and the learning curve,
+    and with compare (the grid's runs are made anyway) the report, whose sections show the grid's
+    models beside the adaptive section."""
     records = [str(P.adaptive_path("adaptive_record", RESULTS, r)) for r in ADAPTIVE_ROUNDS]
-    return records + [P.pattern("learning_curve"), P.pattern("learning_curve_plots")]
+    page = [P.pattern("report"), P.pattern("report_animations")] if ADAPTIVE["compare"] else []
+    return records + adaptive_report_inputs() + page

@@ -24,6 +24,11 @@ def _save(fig: Any, path: Path) -> Path:
 
 
 def learning_curve(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    """Write :func:`learning_curve_figure` as a PNG at ``path``."""
+    return _save(learning_curve_figure(rows), path)
+
+
+def learning_curve_figure(rows: Sequence[Mapping[str, Any]]) -> Any:
     """Held-out pushing-force error (%) against NDEM training runs: the adaptive design, the
     grid, the random designs' mean (and each seed, faint)."""
     from matplotlib.figure import Figure
@@ -42,10 +47,16 @@ def learning_curve(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax.set_ylabel("held-out force_x rel. RMSE (%)")
     ax.grid(alpha=0.3)
     ax.legend()
-    return _save(fig, path)
+    fig.tight_layout()
+    return fig
 
 
 def rounds_map(config: Mapping[str, Any], rounds: Sequence[Sequence[Scored]], path: Path) -> Path:
+    """Write :func:`rounds_map_figure` as a PNG at ``path``."""
+    return _save(rounds_map_figure(config, rounds), path)
+
+
+def rounds_map_figure(config: Mapping[str, Any], rounds: Sequence[Sequence[Scored]]) -> Any:
     """The sweep map of each scenario (speed × depth): the grid (faint), the held-out points, and
     each round's points labelled with their round."""
     from matplotlib.figure import Figure
@@ -87,4 +98,5 @@ def rounds_map(config: Mapping[str, Any], rounds: Sequence[Sequence[Scored]], pa
         ax.set_ylabel("depth (m)")
         ax.grid(alpha=0.3)
     axes[-1].legend(fontsize=7, loc="best")
-    return _save(fig, path)
+    fig.tight_layout()
+    return fig
