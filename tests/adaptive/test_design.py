@@ -134,3 +134,18 @@ def test_points_files_read_back(tmp_path):
     (tmp_path / "other.csv").write_text("a,b\n")
     with pytest.raises(DozerlabError, match="not a round's points"):
         design.read_points(tmp_path / "other.csv")
+
+
+def test_held_out_points_are_never_candidates():
+    held = {"scenario": "hill", "speed": 0.875, "depth": 0.045}
+    sweep = {
+        "speeds": [0.75, 1.25],
+        "depths": [0.03, 0.09],
+        "scenarios": ["hill"],
+        "interpolation": [held],
+    }
+    cfg = load_config(
+        {"sweep": {**sweep, "adaptive": {"candidates": {"kind": "lattice", "count": 5}}}}
+    )
+    pool = design.candidate_pool(cfg)
+    assert len(pool) == 24 and SweepPoint("hill", 0.875, 0.045) not in pool

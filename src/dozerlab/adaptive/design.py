@@ -293,6 +293,20 @@ def next_round(
     sweep, ad = cfg["sweep"], cfg["sweep"]["adaptive"]
     box = Box.of(sweep)
     done = set(taken)
-    pool = [p for p in candidates(sweep["scenarios"], box, ad["candidates"]) if p not in done]
+    pool = [p for p in candidate_pool(cfg) if p not in done]
     scored = score_candidates(runs, pool, box, ad["members"], int(cfg["seed"]) + round_index)
     return select(scored, taken, box, ad["per_round"], ad["min_spacing"])
+
+
+def candidate_pool(cfg: Mapping[str, Any]) -> list[SweepPoint]:
+    """A validated config's candidates (``sweep.adaptive.candidates``) but its held-out points,
+    which no design may train on (a lattice of 5 per axis holds the default sweep's
+    interpolation points)."""
+    sweep = cfg["sweep"]
+    held = {
+        SweepPoint(h["scenario"], float(h["speed"]), float(h["depth"]))
+        for g in ("interpolation", "extrapolation")
+        for h in sweep[g]
+    }
+    pool = candidates(sweep["scenarios"], Box.of(sweep), sweep["adaptive"]["candidates"])
+    return [p for p in pool if p not in held]

@@ -203,8 +203,7 @@ def comparison_designs(
         designs.append(
             Design("grid", -1, (tuple(SweepPoint(p.scenario, p.speed, p.depth) for p in grid),))
         )
-        box = design.Box.of(config["sweep"])
-        pool = design.candidates(config["sweep"]["scenarios"], box, ad["candidates"])
+        pool = design.candidate_pool(config)
         seeds = [int(config["seed"]) + i for i in range(ad["random_designs"])]
         designs += random_designs(pool, [len(s) for s in sets], seeds)
     return designs
