@@ -5,6 +5,12 @@
 # ordinary jobs, and round r + 1's checkpoint waits for round r's runs.
 ADAPTIVE = config["sweep"]["adaptive"]
 ADAPTIVE_ROUNDS = list(range(ADAPTIVE["rounds"] + 1))
+if ADAPTIVE["enabled"] and not HELD_OUT:
+    # the rounds' errors and the learning curve are measured on them
+    raise runtime.ConfigError(
+        "config field 'sweep.adaptive.enabled': an adaptive sweep needs held-out points "
+        "(allowed: sweep.interpolation or sweep.extrapolation not empty)"
+    )
 
 
 def adaptive_points_file(r):
