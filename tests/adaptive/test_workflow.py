@@ -73,7 +73,9 @@ def test_a_two_round_adaptive_sweep_runs_resumes_and_records_each_round(tmp_path
     assert [len(r) for r in rounds] == [4, 1, 1]
     picked = [s.point for r in rounds for s in r]
     assert len(set(picked)) == 6
-    assert P.SweepPoint("hill", 1.25, 0.06) not in picked  # the held-out point at the lattice's centre
+    assert (
+        P.SweepPoint("hill", 1.25, 0.06) not in picked
+    )  # the held-out point at the lattice's centre
     for s in rounds[1] + rounds[2]:
         assert "run-to-run spread" in s.why and s.score > 0
         assert P.field_path(results, s.point).is_dir()  # its NDEM run was made
