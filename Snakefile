@@ -16,6 +16,7 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learn.smk"
 include: "workflow/rules/dynamics.smk"
 include: "workflow/rules/reduced.smk"
+include: "workflow/rules/adaptive.smk"
 include: "workflow/rules/report.smk"
 
 

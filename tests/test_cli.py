@@ -38,6 +38,9 @@ COMMANDS = [
     "reduce",
     "reduce-points",
     "compare-reduced",
+    "adaptive-points",
+    "adaptive-record",
+    "adaptive-curve",
     "verify",
 ]
 

@@ -1,6 +1,6 @@
 """How the package's modules import each other: no cycles (an import inside a function counts,
 so a cycle cannot hide there), and each layer imports only the layers to its left
-(docs/architecture.md: ndem → scenarios → fields → learn → reduce → report, the shared modules
+(docs/architecture.md: ndem → scenarios → fields → learn → reduce → adaptive → report, the shared modules
 below them all, the command line on top)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 #: The layers in their order; every module of the package belongs to one of them.
-LAYERS = ("shared", "ndem", "scenarios", "fields", "learn", "reduce", "report", "cli")
+LAYERS = ("shared", "ndem", "scenarios", "fields", "learn", "reduce", "adaptive", "report", "cli")
 SHARED = {
     "__init__",
     "sweep",

@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "dozerlab.learn.cli",
     "dozerlab.learn.dynamics.cli",
     "dozerlab.reduce.cli",
+    "dozerlab.adaptive.cli",
     "dozerlab.verify",
 )
 

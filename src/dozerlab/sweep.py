@@ -173,6 +173,17 @@ PATHS = {
     "report_dir": "report",
     "report_animations": "report/animations",
 }
+# An adaptive sweep's files (sweep.adaptive, dozerlab.adaptive): per round {round} (0, 1, …) its
+# points, the models trained on the runs so far and their validations, its record.
+PATHS |= {
+    "adaptive_points": "adaptive/round~{round}/points.csv",
+    "adaptive_model": "adaptive/round~{round}/models/{model}",
+    "adaptive_validation": "adaptive/round~{round}/validation/{model}.json",
+    "adaptive_validation_plots": "adaptive/round~{round}/validation/{model}",
+    "adaptive_record": "adaptive/round~{round}/record.json",
+    "learning_curve": "adaptive/learning_curve.csv",
+    "learning_curve_plots": "adaptive/plots",
+}
 #: The workflow's results directory (relative to its working directory).
 RESULTS = "results"
 
@@ -286,3 +297,12 @@ validation_path = _per_model("validation", "held-out metrics of one model")
 dynamics_model_path = _per_model("dynamics_model", "an evolution model's MLflow pyfunc directory")
 dynamics_validation_path = _per_model("dynamics_validation", "an evolution model's held-out errors")
 dynamics_plots_path = _per_model("dynamics_plots", "the figures of that validation")
+
+
+def adaptive_path(kind: str, results: str | Path, round_index: int, model: str = "") -> Path:
+    """A round's file of an adaptive sweep: ``kind`` one of the ``adaptive_*`` keys of
+    :data:`PATHS` (``model`` for a round's model and validation)."""
+    if not kind.startswith("adaptive_"):
+        raise ValueError(f"'{kind}' is not a round's file of an adaptive sweep")
+    names = {"model": model} if "{model}" in PATHS[kind] else {}
+    return _path(kind, results, None, round=str(int(round_index)), **names)

@@ -224,7 +224,10 @@ def reduced_comparisons():
 
 
 def all_targets():
-    """Every result of the configured sweep, spelled as a user would ask for it."""
+    """Every result of the configured sweep, spelled as a user would ask for it (an adaptive
+    sweep's: its rounds and learning curve, adaptive.smk)."""
+    if config["sweep"]["adaptive"]["enabled"]:
+        return adaptive_targets()
     targets = [str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in POINTS})]
     for p in POINTS:
         targets += [str(P.trajectory_path(RESULTS, p, "csv")), str(P.trajectory_path(RESULTS, p, "png"))]

@@ -9,6 +9,7 @@ rule report:
         validation=[str(P.validation_path(RESULTS, m)) for m in validated_models()],
         reduced=reduced_comparisons(),
         dynamics=[str(P.dynamics_validation_path(RESULTS, m)) for m in validated_dynamics()],
+        adaptive=adaptive_report_inputs(),
     output:
         # the page and its animations folder beside it; Snakemake's own report (--report) takes
         # the page alone: a folder would make it a zip

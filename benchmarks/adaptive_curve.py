@@ -1,0 +1,70 @@
+"""The adaptive design's learning curve on the stores of an existing sweep, without new runs.
+
+Replays config/adaptive.yaml's rounds (their picks read from the stores of a finished default
+sweep, so the candidates must be runs there: the grid's lattice) and computes the learning curve
+of the adaptive design, the grid and random designs of the same sizes on the held-out points:
+
+    python benchmarks/adaptive_curve.py --results /tmp/defsweep/results --out /tmp/curve.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from dozerlab.adaptive import design
+from dozerlab.adaptive.curve import mean_by_size, write_curve
+from dozerlab.adaptive.jobs import comparison_designs, learning_curve, read_run
+from dozerlab.config import load_config, read_yaml
+from dozerlab.sweep import field_path
+
+
+def merged(*files: str) -> dict:
+    """Config files laid over each other as Snakemake does (mappings merged key by key)."""
+
+    def merge(a: dict, b: dict) -> dict:
+        for k, v in b.items():
+            a[k] = merge(a[k], v) if isinstance(v, dict) and isinstance(a.get(k), dict) else v
+        return a
+
+    out: dict = {}
+    for f in files:
+        out = merge(out, read_yaml(f))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--results", required=True, help="results folder of a finished default sweep")
+    ap.add_argument(
+        "--configfile", nargs="+", default=["config/config.yaml", "config/adaptive.yaml"]
+    )
+    ap.add_argument("--out", required=True, help="learning-curve CSV to write")
+    args = ap.parse_args()
+    cfg = load_config(merged(*args.configfile))
+    rounds = [design.round_zero(cfg)]
+    runs = {}
+    for r in range(1, cfg["sweep"]["adaptive"]["rounds"] + 1):
+        for s in rounds[-1]:
+            p, y, n = read_run(field_path(args.results, s.point))
+            runs[p] = (y, n)
+        taken = [s.point for x in rounds for s in x]
+        rounds.append(design.next_round(cfg, r, taken, runs))
+    for r, rows in enumerate(rounds):
+        for s in rows:
+            print(f"round {r}: {s.point.scenario} {s.point.name} score {s.score:.3g} ({s.why})")
+    t0 = time.perf_counter()
+    rows = learning_curve(
+        cfg, comparison_designs(cfg, [[s.point for s in x] for x in rounds]), args.results
+    )
+    write_curve(Path(args.out), rows)
+    print(f"learning curve: {len(rows)} rows in {time.perf_counter() - t0:.0f} s -> {args.out}")
+    for name in ("adaptive", "grid", "random"):
+        print(name, {n: round(100 * e, 2) for n, e in mean_by_size(rows, name).items()})
+
+
+if __name__ == "__main__":
+    main()
