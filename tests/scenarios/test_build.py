@@ -147,3 +147,4 @@ def test_a_profile_and_a_heightmap_are_built_to_their_shapes(terrain_beds):
     _, h = height_field(bank.positions, bank.radii, bank.length, bank.width, (4, 4))
     across = h.mean(axis=0)
     assert across[-1] > 1.4 * across[0]  # the heightmap's slope runs across the width, to +y
+    assert len(bank.info["heightmap_sha256"]) == 64 and "heightmap_sha256" not in ridge.info

@@ -74,10 +74,12 @@ def config_json(*sections, scenario=None, fields=None):
     if scenario is not None and "scenarios" in doc:
         doc["scenarios"] = {scenario: config["scenarios"][scenario]}
     if "sweep" in doc and "scenarios" not in doc:
-        # the sweep's own scenarios, which its check refuses unless defined (presets always are)
+        # the sweep's own scenarios, which its check refuses unless defined (presets always are),
+        # and the bed they are checked in
         own = {p.scenario for p in POINTS} - set(terrain.PRESETS)
         if own:
             doc["scenarios"] = {s: config["scenarios"][s] for s in sorted(own)}
+            doc.setdefault("bed", config["bed"])
     for name, keep in (fields or {}).items():
         doc[name] = {k: v for k, v in doc[name].items() if k in keep}
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))

@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 
 from dozerlab.config import height_bound
+from dozerlab.integrity import sha256_file
 from dozerlab.ndem import World
 from dozerlab.runtime import DozerlabError
 from dozerlab.scenarios.bed import Bed
-from dozerlab.terrain import check_terrain, target_height
+from dozerlab.terrain import check_terrain, heightmap_file, target_height
 
 log = logging.getLogger(__name__)
 #: Solver steps between the log lines of a bed build (1 s simulated at the default dt).
@@ -349,6 +350,12 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
             "layers": layers,
             "bed": dict(b),
             "shape": dict(config["scenarios"][scenario]),
+            # what a heightmap held when the bed was built: its path may later hold another
+            **(
+                {"heightmap_sha256": sha256_file(hm)}
+                if (hm := heightmap_file(scenario, config))
+                else {}
+            ),
         },
     )
     _check_inside(bed)
