@@ -255,6 +255,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--speed", type=float, default=1.0, help="blade speed, m/s")
     ap.add_argument("--depth", type=float, default=0.06, help="cut depth, m")
     ap.add_argument("--gap", type=float, default=0.01, help="blade behind the bed at start, m")
+    ap.add_argument(
+        "--solver", nargs="*", default=[], metavar="FIELD=VALUE", help="NDEM solver overrides"
+    )
     ap.add_argument("--lammps-dt", type=float, default=1.0e-4)
     ap.add_argument("--lammps-check", type=int, default=250, help="steps between overlap checks")
     ap.add_argument("--restitution", type=float, default=0.3)
@@ -272,6 +275,13 @@ def main(argv: list[str] | None = None) -> None:
     from dozerlab.scenarios.blade import BladeGeometry, start_tip, tip_to_centre
 
     config = load_config(args.config)
+    overrides = dict(item.split("=") for item in args.solver)
+    config = load_config(
+        {
+            **config,
+            "solver": {**config["solver"], **{k: json.loads(v) for k, v in overrides.items()}},
+        }
+    )
     bed = Bed.load(args.bed)
     box = (bed.length, bed.width)
     material = config["material"]
@@ -281,7 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     print(
         f"bed {args.bed}: {bed.count} grains, {bed.length} x {bed.width} m; NDEM dt {dt} s, "
         f"{config['solver']['iterations']} sweeps at most, tolerance "
-        f"{config['solver']['tolerance']} m/s; LAMMPS dt {args.lammps_dt} s, restitution "
+        f"{config['solver']['tolerance']} m/s, relinearize {config['solver']['relinearize']}; LAMMPS dt {args.lammps_dt} s, restitution "
         f"{args.restitution}; one thread each. Overlaps over the smaller radius; heights mean / "
         f"largest of the surface over {CELL} m cells: {surface(x0, r, box)[0]:.4f} / "
         f"{surface(x0, r, box)[1]:.4f} m before",
