@@ -72,11 +72,11 @@ class Parameters:
 
     dt: time step h in s (> 0); iterations: solver sweeps per step at most (≥ 1); method:
     ``pgs`` or ``nncg`` (:data:`METHODS`); relaxation: ω scaling every row update, in (0, 2)
-    (> 1: over-relaxation, projected SOR); tolerance: the largest velocity change in m/s any
-    contact's update made in a sweep below which a step's solve stops early (0: always run
+    (> 1: over-relaxation, projected SOR); tolerance: the RMS velocity change in m/s of a sweep's
+    updates at the contact points below which a step's solve stops early (0: always run
     ``iterations``); relinearize: rounds (≥ 0) in which the Hertz rows whose pairs sink past the
-    overlap their compliance was taken at are taken again there and the solve continues; gravity (3,) m/s²; damping_steps:
-    SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
+    overlap their compliance was taken at are taken again there and the solve continues;
+    gravity (3,) m/s²; damping_steps: SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
     poisson_ratio ν in [0, 0.5); max_overlap: overlap over the smaller radius that raises
     DivergenceError; density (kg/m³), friction μ and rolling_resistance μ_r: sphere defaults;
     wall_friction: body default μ; contact_margin: speculative gap as a fraction of the smallest

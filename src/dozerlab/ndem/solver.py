@@ -304,7 +304,7 @@ def all_finite(x, v, w):
 
 
 @njit(parallel=True, cache=True)
-def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon):
+def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
     """Re-linearise, in place, the Hertz rows whose pair reaches by the end of the step an
     overlap over :data:`SINK` times the one their compliance was taken at and over
     :data:`SINK_FLOOR` of the smaller radius; returns how many.
@@ -314,11 +314,12 @@ def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon):
     the contact network within the step was taken nearly unloaded (g ≈ 0: a near-infinite
     compliance) and sinks by a whole step's travel; evaluated again at the overlap
     g − h·uₙ the current velocities reach, the row carries the load. Only rows with Σ > 0
-    (compliant, not speculative, not frozen) change; Σ only decreases (stiffer).
+    (compliant, not speculative) among the first ``swept`` (the frozen group, after them, is
+    never swept) change; Σ only decreases (stiffer). ``gap`` (Nc,) m, ``v`` (N, 3) m/s after
+    the solve, ``r`` (N,) m, ``estar`` Pa, ``h`` s, ``upsilon`` as in the assembly.
     """
-    nc = ci.shape[0]
-    changed = np.zeros(nc, dtype=np.int64)
-    for k in prange(nc):
+    changed = np.zeros(swept, dtype=np.int64)
+    for k in prange(swept):
         sig = cd[k, SIG]
         if sig <= 0.0 or cd[k, KN] <= 0.0:
             continue
