@@ -16,7 +16,7 @@ process: the largest overlap over the smaller radius at the start of every ``--e
 (and every step above 5 %), the steps run, the largest overlap of the run, the mean sweeps per
 step, the wall time of the stepping and the fastest grain's speed at the end; a
 ``DivergenceError`` ends that solver's run and is printed. Not a test: the seconds depend on
-the machine and its load (tests/ndem/test_stepper.py drops a smaller lattice).
+the machine and its load (tests/ndem/test_solver.py drops a smaller lattice).
 """
 
 from __future__ import annotations
