@@ -4,7 +4,8 @@
         --trajectory results/trajectories/hill/speed~1.5_depth~0.08.csv --config config/quick.yaml \\
         --solvers pgs:1.0:100 pgs:1.5:60 pgs:1.0:200 pgs:1.5:100
 
-Each solver is METHOD:RELAXATION:ITERATIONS (no tolerance). The run drives the blade along the
+Each solver is METHOD:RELAXATION:ITERATIONS[:RELINEARIZE[:TOLERANCE]] (``solver.relinearize``
+and ``solver.tolerance`` the schema's defaults unless given). The run drives the blade along the
 trajectory from the bed as the ``simulate`` job does (without sampling) and prints, side by
 side in one process, the seconds spent stepping, the largest overlap over the smaller radius
 (how soft the bed got: the divergence guard is ``solver.max_overlap``), the mean sweeps and
@@ -27,7 +28,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--bed", required=True)
     ap.add_argument("--trajectory", required=True)
     ap.add_argument("--config", required=True)
-    ap.add_argument("--solvers", nargs="+", required=True, help="METHOD:RELAXATION:ITERATIONS")
+    ap.add_argument(
+        "--solvers", nargs="+", required=True, help="METHOD:RELAXATION:ITERATIONS[:RELINEARIZE]"
+    )
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--perturb", type=float, nargs="+", default=[0.0], metavar="EPS")
     args = ap.parse_args(argv)
@@ -44,12 +47,16 @@ def main(argv: list[str] | None = None) -> None:
     config = load_config(args.config)
     traj, bed = Trajectory.load_csv(args.trajectory), Bed.load(args.bed)
     for spec, eps in ((s, e) for s in args.solvers for e in args.perturb):
-        method, omega, iterations = spec.split(":")
+        method, omega, iterations, *more = spec.split(":")
         solver = {"method": method, "relaxation": float(omega), "iterations": int(iterations)}
+        if more:
+            solver["relinearize"] = int(more[0])
+        if len(more) > 1:
+            solver["tolerance"] = float(more[1])
         world, _ = make_world(bed, {**config, "solver": {**config["solver"], **solver}})
         world.state.v *= 1.0 + eps
         blade = add_blade(world, traj.position[0], config)
-        seconds, overlap, sweeps, fx = 0.0, 0.0, 0, []
+        seconds, overlap, sweeps, fx, extra = 0.0, 0.0, 0, [], 0
         for i in range(traj.steps):
             world.set_velocity(blade, traj.velocity[i])
             t0 = time.perf_counter()
@@ -57,10 +64,12 @@ def main(argv: list[str] | None = None) -> None:
             seconds += time.perf_counter() - t0
             overlap = max(overlap, stats.max_overlap_fraction)
             sweeps += stats.iterations
+            extra += stats.iterations > int(iterations)  # a re-linearisation round ran
             fx.append(world.force_on(blade)[0])
         print(
             f"{spec:16s} eps {eps:8.1e} stepping {seconds:6.2f} s, "
             f"largest overlap {overlap:.3f} r, {sweeps / traj.steps:.0f} sweeps/step, "
+            f"re-linearised in {extra} of {traj.steps} steps, "
             f"mean push {-np.mean(fx):8.1f} N"
         )
 

@@ -28,6 +28,7 @@ SOLVER_KEYS = (
     "method",
     "relaxation",
     "tolerance",
+    "relinearize",
 )
 # solver.active_zone's keys and the Parameters fields they fill.
 ZONE_KEYS = {
@@ -71,9 +72,11 @@ class Parameters:
 
     dt: time step h in s (> 0); iterations: solver sweeps per step at most (≥ 1); method:
     ``pgs`` or ``nncg`` (:data:`METHODS`); relaxation: ω scaling every row update, in (0, 2)
-    (> 1: over-relaxation, projected SOR); tolerance: RMS normal-row update in m/s below which a
-    step's solve stops early (0: always run ``iterations``); gravity (3,) m/s²; damping_steps:
-    SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
+    (> 1: over-relaxation, projected SOR); tolerance: the RMS velocity change in m/s of a sweep's
+    updates at the contact points below which a step's solve stops early (0: always run
+    ``iterations``); relinearize: rounds (≥ 0) in which the Hertz rows whose pairs sink past the
+    overlap their compliance was taken at are taken again there and the solve continues;
+    gravity (3,) m/s²; damping_steps: SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
     poisson_ratio ν in [0, 0.5); max_overlap: overlap over the smaller radius that raises
     DivergenceError; density (kg/m³), friction μ and rolling_resistance μ_r: sphere defaults;
     wall_friction: body default μ; contact_margin: speculative gap as a fraction of the smallest
@@ -89,6 +92,7 @@ class Parameters:
     method: str = field(default_factory=_schema("method"))
     relaxation: float = field(default_factory=_schema("relaxation"))
     tolerance: float = field(default_factory=_schema("tolerance"))
+    relinearize: int = field(default_factory=_schema("relinearize"))
     damping_steps: float = field(default_factory=_schema("damping_steps"))
     youngs_modulus: float = field(default_factory=_schema("youngs_modulus"))
     poisson_ratio: float = field(default_factory=_schema("poisson_ratio"))
@@ -132,6 +136,9 @@ class Parameters:
         put("iterations", int(self.iterations))
         put("relaxation", float(self.relaxation))
         put("tolerance", nonnegative("tolerance", self.tolerance))
+        if int(self.relinearize) != self.relinearize or int(self.relinearize) < 0:
+            raise ValueError(f"relinearize must be an integer >= 0, got {self.relinearize!r}")
+        put("relinearize", int(self.relinearize))
         put("gravity", vec3("gravity", self.gravity))
         put("damping_steps", float(damping))
         put("poisson_ratio", float(pr))

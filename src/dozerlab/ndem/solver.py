@@ -18,6 +18,12 @@ from numba import njit, prange
 
 from dozerlab.ndem.contacts import KN, KR, KT, MU, MUR, N0, RI, RJ, SIG, VB, WB, B
 
+# A Hertz row is taken again when its pair sinks past this multiple of the overlap its
+# compliance was taken at (a factor, not any excess: the round costs a solve) and past this
+# fraction of the smaller radius (grains coming to rest on each other sink by less).
+SINK = 2.0
+SINK_FLOOR = 0.01
+
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _clip(t0, t1, t2, lim):
@@ -33,7 +39,8 @@ def _clip(t0, t1, t2, lim):
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1);
-    returns the squared normal-row residual (m²/s²).
+    returns the squared normal-row residual and the squared velocity change the update made at
+    the contact point over ω (m²/s²: translation, friction turn and rolling, as surface speeds).
 
     The rows are solved in order (normal, friction, rolling), each seeing the ones before, but
     written so that little waits on the row before: the normal update is along n, so the
@@ -87,7 +94,8 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
                     vj1 - dn * imj * n1,
                     vj2 - dn * imj * n2,
                 )
-        return res * res
+        du = dn * (imi + imj) / omega
+        return res * res, du * du
 
     # Friction: the trial impulse from the contact points' tangential relative velocity.
     ri = c[RI]
@@ -137,7 +145,19 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
         w[j, 0] = wj0 - qj * x0 - iij * e0
         w[j, 1] = wj1 - qj * x1 - iij * e1
         w[j, 2] = wj2 - qj * x2 - iij * e2
-    return res * res
+    # the velocity change of the update at the contact point: translation, the turn of the
+    # friction update and the rolling update, each as a surface speed (friction and rolling
+    # count, so a stop on it leaves no grain creeping on an unconverged friction row), before
+    # the relaxation (as the residual), so ω does not delay the stop
+    sm = imi + imj
+    sq = qi * ri + qj * rj
+    sr = iii * ri + iij * rj
+    du2 = (
+        sm * sm * (p0 * p0 + p1 * p1 + p2 * p2)
+        + sq * sq * (x0 * x0 + x1 * x1 + x2 * x2)
+        + sr * sr * (e0 * e0 + e1 * e1 + e2 * e2)
+    )
+    return res * res, du2 / (omega * omega)
 
 
 @njit(cache=True, inline="always")
@@ -162,7 +182,9 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
 def solve(
     ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, method, tolerance, omega
 ):
-    """Sweep the contacts until the residual is below ``tolerance`` or ``iterations`` sweeps ran.
+    """Sweep the contacts until a sweep changed the velocities at the contact points by less
+    than ``tolerance`` (m/s, RMS over the contacts of every row's change) or ``iterations``
+    sweeps ran.
 
     Each update is scaled by ``omega`` (projected SOR when > 1). ``method`` is an index into
     :data:`dozerlab.ndem.params.METHODS`: 0 PGS; 1 NNCG
@@ -192,6 +214,7 @@ def solve(
     u = np.zeros((ms, 6))  # M⁻¹Jᵀp: the search direction in velocities
     res_part = np.zeros(n_slabs)
     step_part = np.zeros(n_slabs)
+    du_part = np.zeros(n_slabs)
     res = 0.0
     step_norm_old = 0.0
     threshold = tolerance * tolerance * max(nc, 1)
@@ -207,6 +230,7 @@ def solve(
                 s = 2 * np.int64(m) + phase  # prange indices may be unsigned
                 r = 0.0
                 d2 = 0.0
+                du = 0.0
                 for g in (s, n_slabs + s):
                     if g == 2 * n_slabs - 1:
                         continue  # the last slab has no boundary group
@@ -214,20 +238,25 @@ def solve(
                         if nncg:
                             for a in range(7):
                                 prev[k, a] = lam[k, a]
-                        r += _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega)
+                        rk, uk = _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega)
+                        r += rk
+                        du += uk
                         if nncg:
                             for a in range(7):
                                 d = lam[k, a] - prev[k, a]
                                 d2 += d * d
                 res_part[s] = r
                 step_part[s] = d2
+                du_part[s] = du
         done += 1
         res = 0.0
         step_norm = 0.0
+        change = 0.0
         for t in range(n_slabs):
             res += res_part[t]
             step_norm += step_part[t]
-        if tolerance > 0.0 and res <= threshold:
+            change += du_part[t]
+        if tolerance > 0.0 and change <= threshold:
             break
         if not nncg or done == iterations:
             continue
@@ -272,3 +301,46 @@ def all_finite(x, v, w):
             if not (np.isfinite(x[i, a]) and np.isfinite(v[i, a]) and np.isfinite(w[i, a])):
                 bad[i] = True
     return not bad.any()
+
+
+@njit(parallel=True, cache=True)
+def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
+    """Re-linearise, in place, the Hertz rows whose pair reaches by the end of the step an
+    overlap over :data:`SINK` times the one their compliance was taken at and over
+    :data:`SINK_FLOOR` of the smaller radius; returns how many.
+
+    A compliant row's compliance 4 / (5 k_n √g) is evaluated at assembly from the pair's
+    approach at the start of the step. A pair touching at rest that a load reaches through
+    the contact network within the step was taken nearly unloaded (g ≈ 0: a near-infinite
+    compliance) and sinks by a whole step's travel; evaluated again at the overlap
+    g − h·uₙ the current velocities reach, the row carries the load. Only rows with Σ > 0
+    (compliant, not speculative) among the first ``swept`` (the frozen group, after them, is
+    never swept) change; Σ only decreases (stiffer). ``gap`` (Nc,) m, ``v`` (N, 3) m/s after
+    the solve, ``r`` (N,) m, ``estar`` Pa, ``h`` s, ``upsilon`` as in the assembly.
+    """
+    changed = np.zeros(swept, dtype=np.int64)
+    for k in prange(swept):
+        sig = cd[k, SIG]
+        if sig <= 0.0 or cd[k, KN] <= 0.0:
+            continue
+        i = ci[k]
+        j = cj[k]
+        un = 0.0
+        for a in range(3):
+            vj = v[j, a] if j >= 0 else cd[k, VB + a]
+            un += cd[k, N0 + a] * (v[i, a] - vj)
+        g_end = gap[k] - h * un
+        rmin = min(r[i], r[j]) if j >= 0 else r[i]
+        if g_end <= SINK_FLOOR * rmin:
+            continue
+        rstar = r[i] * r[j] / (r[i] + r[j]) if j >= 0 else r[i]
+        kn = 4.0 / 3.0 * estar * np.sqrt(rstar)
+        # the overlap Σ was taken at: Σ = 16 Υ / (5 k_n h² √g)
+        root = 16.0 * upsilon / (5.0 * kn * h * h * sig)
+        if g_end > SINK * root * root:
+            new = 16.0 * upsilon / (5.0 * kn * h * h * np.sqrt(g_end))
+            sn = 1.0 / cd[k, KN] - sig
+            cd[k, SIG] = new
+            cd[k, KN] = 1.0 / (sn + new)
+            changed[k] = 1
+    return changed.sum()

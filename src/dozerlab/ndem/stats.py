@@ -20,7 +20,8 @@ class StepStats:
     update, in m/s (→ 0 as the solver converges); max_overlap: largest overlap in m and
     max_overlap_fraction the largest overlap over the smaller radius, at the start of the step;
     step and time (s) after the step; iterations: solver sweeps run (at most
-    ``solver.iterations``; fewer when ``solver.tolerance`` stopped the solve); active: spheres
+    ``solver.iterations``, fewer when ``solver.tolerance`` stopped the solve, and up to that
+    many more per ``solver.relinearize`` round that ran); active: spheres
     awake after the step (all of them unless ``solver.active_zone`` is enabled).
     """
 

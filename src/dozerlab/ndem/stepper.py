@@ -183,6 +183,15 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             p.tolerance,
             p.relaxation,
         )
+        for _ in range(p.relinearize if estar > 0.0 else 0):
+            swept = int(gstart[2 * n_slabs])
+            if solver.stiffen(ci, cj, cd, gap, state.v, state.r, estar, h, upsilon, swept) == 0:
+                break
+            residual, more = solver.solve(
+                *(ci, cj, cd, lam, state.v, state.w, invm, invI, gstart, n_slabs, p.iterations),
+                *(False, METHODS.index(p.method), p.tolerance, p.relaxation),
+            )
+            sweeps += more
     state.warm.store(state.id, ci, cj, lam)
     if p.active_zone:
         _wake_loaded(

@@ -70,6 +70,7 @@ class World:
     method = _parameter("method")
     relaxation = _parameter("relaxation")
     tolerance = _parameter("tolerance")
+    relinearize = _parameter("relinearize")
     damping_steps = _parameter("damping_steps")
     youngs_modulus = _parameter("youngs_modulus")
     poisson_ratio = _parameter("poisson_ratio")
