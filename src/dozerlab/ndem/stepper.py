@@ -94,10 +94,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     rot = bodies.rotations()
     body_reach = 2.0 * (reach - state.r) + p.dt * body_speed
-    invm = 1.0 / state.m
-    invI = 1.0 / (0.4 * state.m * state.r**2)
     zone = np.zeros(0, dtype=np.bool_)
-    awake = None
     if p.active_zone:
         zone = _wake_zone(
             state.awake,
@@ -115,6 +112,73 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             bodies.normal,
             p.zone_margin,
         )
+        v0, w0 = state.v.copy(), state.w.copy()
+    while True:
+        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps = _solve_awake(
+            state, bodies, p, cells, start, dims, reach, slab, n_slabs, rot, body_reach
+        )
+        if not p.active_zone:
+            break
+        # a sleeper that the awake grains now load beyond what holds it still wakes, and the
+        # step is solved again with it: a grain jammed between the blade and a rigid sleeper
+        # would otherwise sink into it by the blade's travel every step
+        held = state.warm.held(state.public(~state.awake))[state.id]
+        if not _wake_loaded(state.awake, state.rest, ci, cj, lam, held):
+            break
+        state.v[:], state.w[:] = v0, w0
+    if p.active_zone:
+        state.warm.store(state.id, ci, cj, lam, state.public(~state.awake))
+        _wake_touched(state.awake, state.rest, ci, cj, state.v, p.rest_speed)
+    else:
+        state.warm.store(state.id, ci, cj, lam)
+    bodies.force, bodies.torque = contacts.body_loads(
+        ci, cj, cd, lam, state.x, bodies.center, nb, h
+    )
+    if solver.integrate(state.x, state.v, state.w, h):
+        _raise_non_finite(state, "after")
+    active = state.n
+    if p.active_zone:
+        active = _settle(
+            state.awake, state.rest, zone, state.v, state.w, state.r, h, p.rest_speed, p.rest_time
+        )
+    bodies.integrate(h)
+    state.time += h
+    state.step_count += 1
+    return StepStats(
+        step=state.step_count,
+        time=state.time,
+        contacts=touching,
+        speculative=ci.shape[0] - touching,
+        residual=float(residual),
+        max_overlap=gap_max,
+        max_overlap_fraction=frac_max,
+        iterations=int(sweeps),
+        active=int(active),
+    )
+
+
+def _solve_awake(
+    state: WorldState,
+    bodies: Bodies,
+    p: Parameters,
+    cells: np.ndarray,
+    start: np.ndarray,
+    dims: np.ndarray,
+    reach: np.ndarray,
+    slab: np.ndarray,
+    n_slabs: int,
+    rot: np.ndarray,
+    body_reach: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int]:
+    """Detect, assemble and solve the contacts of the awake spheres (all of them without the
+    active zone), gravity applied to them; velocities updated in place. Returns i, j, the
+    contact table, the multipliers, :func:`_check_overlap`'s figures, the residual (m/s) and
+    the sweeps run."""
+    h = p.dt
+    invm = 1.0 / state.m
+    invI = 1.0 / (0.4 * state.m * state.r**2)
+    awake = None
+    if p.active_zone:
         awake = state.awake
         # a sleeping sphere is a fixed obstacle to the awake ones: infinite mass and inertia
         invm = invm * state.awake
@@ -157,8 +221,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         upsilon,
         estar,
     )
-    frac_max, touching, gap_max = _check_overlap(state, p, ci, cj, gap)
-
+    overlap = _check_overlap(state, p, ci, cj, gap)
     if p.active_zone:
         state.v[state.awake] += h * p.gravity
     else:
@@ -185,35 +248,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             p.tolerance,
             p.relaxation,
         )
-    if p.active_zone:
-        state.warm.store(state.id, ci, cj, lam, state.public(~state.awake))
-        _wake_touched(state.awake, state.rest, ci, cj, state.v, p.rest_speed)
-    else:
-        state.warm.store(state.id, ci, cj, lam)
-    bodies.force, bodies.torque = contacts.body_loads(
-        ci, cj, cd, lam, state.x, bodies.center, nb, h
-    )
-    if solver.integrate(state.x, state.v, state.w, h):
-        _raise_non_finite(state, "after")
-    active = state.n
-    if p.active_zone:
-        active = _settle(
-            state.awake, state.rest, zone, state.v, state.w, state.r, h, p.rest_speed, p.rest_time
-        )
-    bodies.integrate(h)
-    state.time += h
-    state.step_count += 1
-    return StepStats(
-        step=state.step_count,
-        time=state.time,
-        contacts=touching,
-        speculative=ci.shape[0] - touching,
-        residual=float(residual),
-        max_overlap=gap_max,
-        max_overlap_fraction=frac_max,
-        iterations=int(sweeps),
-        active=int(active),
-    )
+    return ci, cj, cd, lam, overlap, float(residual), int(sweeps)
 
 
 @njit(cache=True)
@@ -242,6 +277,28 @@ def _wake_zone(awake, rest, x, v, w, r, reach, zone_body, kind, center, rot, hal
             awake[i] = True
             rest[i] = 0.0
     return zone
+
+
+@njit(cache=True)
+def _wake_loaded(awake, rest, ci, cj, lam, held):
+    """Wake, in place, the sleeping spheres whose contacts with awake spheres carry normal
+    impulses ``lam[:, 0]`` (N·s) summing to more than ``held`` (N,) N·s, those of its contacts
+    with other sleepers and bodies, which hold it still; returns how many woke. At rest the
+    awake grains lean on a sleeper no harder than its resting contacts hold it; a pile pushing
+    into it, or a grain jammed between it and the blade, outgrows them."""
+    n = awake.shape[0]
+    pushed = np.zeros(n)
+    for k in range(ci.shape[0]):
+        i, j = ci[k], cj[k]
+        if j >= 0 and awake[i] != awake[j]:
+            pushed[j if awake[i] else i] += lam[k, 0]
+    count = 0
+    for i in range(n):
+        if not awake[i] and pushed[i] > held[i]:
+            awake[i] = True
+            rest[i] = 0.0
+            count += 1
+    return count
 
 
 @njit(cache=True)

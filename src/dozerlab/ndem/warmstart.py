@@ -97,6 +97,18 @@ def _store(ids, ci, cj, lam, n_ids, old_start, old_hi, old_lam, asleep):
     return start, hi_store, lam_store
 
 
+@njit(cache=True)
+def _held(start, hi, lam, asleep):
+    held = np.zeros(asleep.shape[0])
+    for lo in range(min(start.shape[0] - 1, asleep.shape[0])):
+        for s in range(start[lo], start[lo + 1]):
+            if _carried(lo, hi[s], lam[s], asleep):
+                held[lo] += lam[s, 0]
+                if hi[s] >= 0:
+                    held[hi[s]] += lam[s, 0]
+    return held
+
+
 class WarmStart:
     """Multipliers of the last step, grouped by the contact's lower sphere id."""
 
@@ -114,6 +126,12 @@ class WarmStart:
         """
         # A strided view (the contact table's normal columns) is read in place, not copied.
         return _lookup(ids, ci, cj, normals, self.start, self.hi, self.lam)
+
+    def held(self, asleep: np.ndarray) -> np.ndarray:
+        """Per sphere id (N,), the normal impulses (N·s) summed over its stored contacts that a
+        step with ``asleep`` (N,) bool by id leaves out (among sleepers and bodies): what holds
+        a sleeping sphere still."""
+        return _held(self.start, self.hi, self.lam, asleep)
 
     def store(
         self,
