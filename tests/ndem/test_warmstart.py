@@ -66,3 +66,17 @@ def test_loaded_contacts_among_sleeping_spheres_are_carried_until_one_wakes():
     got = warm.lookup(ids, ci, cj, normals)
     np.testing.assert_array_equal(got[0], np.zeros(7))
     np.testing.assert_array_equal(got[2], lam[2])
+
+
+def test_held_sums_the_normal_impulses_a_step_leaves_out():
+    warm = WarmStart()
+    ids = np.array([0, 1, 2], dtype=np.int64)
+    # 0–1 and 1–2 loaded, 2 on body 0
+    ci, cj = np.array([0, 1, 2]), np.array([1, 2, -1])
+    lam = np.array(
+        [_lam(0.5, (0,) * 3, (0,) * 3), _lam(0.25, (0,) * 3, (0,) * 3)] * 1
+        + [_lam(2.0, (0,) * 3, (0,) * 3)]
+    )
+    warm.store(ids, ci, cj, lam)
+    # 0 awake: its contact is solved by the step, not held
+    np.testing.assert_allclose(warm.held(np.array([False, True, True])), [0.0, 0.25, 2.25])
