@@ -75,3 +75,16 @@ def test_drive_counts_steps_samples_and_forces(run_inputs, monkeypatch):
     assert m["contact_iterations_per_s"] == pytest.approx(
         stats.contact_iterations / stats.step_time
     )
+
+
+def test_drive_reports_the_active_zones_awake_fraction(run_inputs):
+    tmp, config, bed, traj = run_inputs
+    grid = SamplingGrid.from_config(config)
+    attrs = dict.fromkeys(ATTRS, 0) | {"scenario": "hill", "bins": list(grid.bins)}
+    full = drive(bed, traj, config, grid, attrs, tmp / "full.zarr")
+    zoned_config = config | {
+        "solver": config["solver"] | {"active_zone": {"enabled": True, "margin": 0.0}}
+    }
+    zoned = drive(bed, traj, zoned_config, grid, attrs, tmp / "zone.zarr")
+    assert full.metrics(bed.count)["active_fraction"] == 1.0
+    assert 0.0 < zoned.metrics(bed.count)["active_fraction"] < 1.0

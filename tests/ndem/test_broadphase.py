@@ -69,6 +69,20 @@ def test_pairs_are_every_pair_within_reach_once():
     np.testing.assert_allclose(nrm, (pos[pi] - pos[pj]) / dist[:, None])  # from j to i
 
 
+def test_pairs_of_two_sleeping_spheres_are_skipped():
+    rng = np.random.default_rng(2)
+    pos, cells, start, dims = _sorted(rng.uniform(0, 1, (300, 3)), 0.06)
+    radii = rng.uniform(0.03, 0.05, 300)
+    reach = radii + 0.01
+    awake = rng.uniform(size=300) < 0.3
+    every = sphere_pairs(pos, radii, reach, cells, start, dims)
+    some = sphere_pairs(pos, radii, reach, cells, start, dims, awake)
+    keep = awake[every[0]] | awake[every[1]]
+    assert 0 < keep.sum() < keep.size
+    for a, b in zip(some, every, strict=True):
+        np.testing.assert_array_equal(a, b[keep])  # the rest, in the same order
+
+
 @pytest.mark.parametrize("capacity", [1, 7, 10**5])
 def test_one_pass_pairs_equal_count_then_fill_whatever_the_first_buffer(capacity):
     # capacity 1 and 7 overflow (the buffers double and the scan restarts), 10**5 does not
@@ -76,8 +90,9 @@ def test_one_pass_pairs_equal_count_then_fill_whatever_the_first_buffer(capacity
     pos, cells, start, dims = _sorted(rng.uniform(0, 1, (400, 3)), 0.06)
     radii = rng.uniform(0.03, 0.05, 400)
     reach = radii + 0.01
-    serial = pairs_serial(pos, radii, reach, cells, start, dims, capacity)
-    parallel = pairs_parallel(pos, radii, reach, cells, start, dims)
+    awake = rng.uniform(size=400) < 0.5
+    serial = pairs_serial(pos, radii, reach, cells, start, dims, awake, capacity)
+    parallel = pairs_parallel(pos, radii, reach, cells, start, dims, awake)
     assert serial[0].size > 100
     for a, b in zip(serial, parallel, strict=True):
         np.testing.assert_array_equal(a, b)  # same pairs, same order, same bits

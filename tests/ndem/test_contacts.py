@@ -91,9 +91,11 @@ def test_one_pass_body_contacts_equal_count_then_fill():
         b.rotations(),
         b.half,
         b.normal,
+        rng.uniform(size=n) < 0.5,
     )
     serial = body_contacts_serial(*args)
     parallel = body_contacts_parallel(*args)
     assert set(serial[1].tolist()) == {0, 1, 2}  # every body has hits
+    assert np.all(args[-1][serial[0]])  # of the spheres awake only
     for x, y in zip(serial, parallel, strict=True):
         np.testing.assert_array_equal(x, y)

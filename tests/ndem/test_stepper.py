@@ -295,6 +295,19 @@ def test_active_zone_wakes_a_sleeping_grain_that_a_moving_one_reaches():
     assert w.positions[1, 0] > x1 + 0.03  # hit, woken and pushed on
 
 
+def test_active_zone_lets_a_grain_sleep_only_after_rest_time_at_rest_outside_it():
+    w = World(active_zone=True, zone_margin=0.2, rest_time=0.1)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R], [2.0, 0.0, R]], radius=R)
+    w.add_box((-0.2, 0.0, 0.1), (0.05, 0.2, 0.1), kinematic=True)  # a blade standing still
+    w.step(8)
+    assert w.state.public(w.state.awake).tolist() == [True, True]  # both at rest < 0.1 s
+    w.step(12)
+    # the far one slept after 0.1 s at rest; the one in the zone never does
+    assert w.state.public(w.state.awake).tolist() == [True, False]
+    assert w.last_stats.active == 1
+
+
 def test_active_zone_covering_every_grain_changes_nothing():
     full, _ = _row_and_blade()
     zoned, _ = _row_and_blade(active_zone=True, zone_margin=100.0)

@@ -80,8 +80,11 @@ def counting_sort(keys: np.ndarray, nkeys: int) -> tuple[np.ndarray, np.ndarray]
 
 
 @njit(cache=True)
-def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out_g, base):
+def _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, out_j, out_n, out_g, base):
     """Count (``base`` < 0) or write the pairs (i, j > i) of particle i; returns the count.
+
+    A pair of two spheres asleep (``awake`` (N,) False; an empty ``awake``: all awake) is
+    skipped: neither moves, so the step has nothing to solve between them.
 
     Writes go to ``base`` onwards and stop at the end of ``out_j`` (the count goes on), so a
     caller whose buffer was too small sees ``base + count > len(out_j)`` and can retry.
@@ -97,6 +100,7 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out
     jz0 = max(iz - 1, 0)
     jz1 = min(iz + 1, dims[2] - 1)
     x0, x1, x2, ri = pos[i, 0], pos[i, 1], pos[i, 2], reach[i]
+    i_awake = awake.shape[0] == 0 or awake[i]
     count = 0
     for dx in range(2):
         jx = ix + dx
@@ -109,6 +113,8 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, out_j, out_n, out
             col = (jx * dims[1] + jy) * dims[2]
             j0 = i + 1 if dx == 0 and dy == 0 else start[col + jz0]
             for j in range(j0, start[col + jz1 + 1]):
+                if not (i_awake or awake[j]):
+                    continue
                 d0 = x0 - pos[j, 0]
                 d1 = x1 - pos[j, 1]
                 d2 = x2 - pos[j, 2]
@@ -158,8 +164,10 @@ def sphere_pairs(
     cells: np.ndarray,
     start: np.ndarray,
     dims: np.ndarray,
+    awake: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """All sphere pairs closer than ``reach_i + reach_j`` (reach ≥ radius, m) in sorted slots.
+    """All sphere pairs closer than ``reach_i + reach_j`` (reach ≥ radius, m) in sorted slots,
+    but those of two spheres asleep (``awake`` (N,) bool False; None: every sphere awake).
 
     Returns i (M,), j (M,) with j > i, the unit normal (M, 3) pointing from j to i and the
     overlap g (M,) in m (negative: a gap). Pairs come out ordered by i, then by cell of j.
@@ -167,13 +175,14 @@ def sphere_pairs(
     then fill at known offsets) so the threads can write independently. Both give the same
     arrays.
     """
+    mask = np.zeros(0, dtype=np.bool_) if awake is None else awake
     if numba.get_num_threads() == 1:
-        return pairs_serial(pos, radii, reach, cells, start, dims, 4 * pos.shape[0] + 64)
-    return pairs_parallel(pos, radii, reach, cells, start, dims)
+        return pairs_serial(pos, radii, reach, cells, start, dims, mask, 4 * pos.shape[0] + 64)
+    return pairs_parallel(pos, radii, reach, cells, start, dims, mask)
 
 
 @njit(cache=True)
-def pairs_serial(pos, radii, reach, cells, start, dims, capacity):
+def pairs_serial(pos, radii, reach, cells, start, dims, awake, capacity):
     """:func:`sphere_pairs` in one pass into buffers of ``capacity`` (≥ 1) pairs, doubled and
     rescanned from the start on the rare overflow."""
     while True:
@@ -181,18 +190,18 @@ def pairs_serial(pos, radii, reach, cells, start, dims, capacity):
         pj = np.empty(capacity, dtype=np.int64)
         nrm = np.empty((capacity, 3))
         gap = np.empty(capacity)
-        m = _fill_pairs(pos, radii, reach, cells, start, dims, pi, pj, nrm, gap)
+        m = _fill_pairs(pos, radii, reach, cells, start, dims, awake, pi, pj, nrm, gap)
         if m >= 0:
             return pi[:m], pj[:m], nrm[:m], gap[:m]
         capacity *= 2
 
 
 @njit(cache=True)
-def _fill_pairs(pos, radii, reach, cells, start, dims, pi, pj, nrm, gap):
+def _fill_pairs(pos, radii, reach, cells, start, dims, awake, pi, pj, nrm, gap):
     """Write all pairs into the buffers; returns their number, or -1 if they did not fit."""
     m = 0
     for i in range(pos.shape[0]):
-        count = _scan_neighbours(i, pos, radii, reach, cells, start, dims, pj, nrm, gap, m)
+        count = _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, pj, nrm, gap, m)
         if m + count > pj.shape[0]:
             return -1
         pi[m : m + count] = i
@@ -201,7 +210,7 @@ def _fill_pairs(pos, radii, reach, cells, start, dims, pi, pj, nrm, gap):
 
 
 @njit(parallel=True, cache=True)
-def pairs_parallel(pos, radii, reach, cells, start, dims):
+def pairs_parallel(pos, radii, reach, cells, start, dims, awake):
     """:func:`sphere_pairs` by count, then fill, each pass over the spheres in parallel."""
     n = pos.shape[0]
     dummy_j = np.empty(0, dtype=np.int64)
@@ -211,11 +220,11 @@ def pairs_parallel(pos, radii, reach, cells, start, dims):
     counts[0] = 0
     for i in prange(n):
         counts[i + 1] = _scan_neighbours(
-            i, pos, radii, reach, cells, start, dims, dummy_j, dummy_n, dummy_g, -1
+            i, pos, radii, reach, cells, start, dims, awake, dummy_j, dummy_n, dummy_g, -1
         )
     offsets, pi, pj, nrm, gap = hit_buffers(counts)
     for i in prange(n):
-        _scan_neighbours(i, pos, radii, reach, cells, start, dims, pj, nrm, gap, offsets[i])
+        _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, pj, nrm, gap, offsets[i])
         for k in range(offsets[i], offsets[i + 1]):
             pi[k] = i
     return pi, pj, nrm, gap

@@ -78,20 +78,24 @@ def body_contacts(
     brot: np.ndarray,
     bext: np.ndarray,
     bnormal: np.ndarray,
+    awake: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m.
+    """Sphere–plane and sphere–box contacts with a gap below ``margin`` (N,) m, of the spheres
+    awake (``awake`` (N,) bool; None: every sphere): one asleep is held still, so its contacts
+    with bodies have nothing to solve.
 
     Returns sphere slot (M,), body index (M,), normal (M, 3) out of the body, overlap (M,) m,
     ordered by slot, then body. On one numba thread the spheres are tested once; on more, twice (count, then fill); both give the same arrays.
     """
-    args = (pos, radii, margin, kind, bpos, brot, bext, bnormal)
+    mask = np.zeros(0, dtype=np.bool_) if awake is None else awake
+    args = (pos, radii, margin, kind, bpos, brot, bext, bnormal, mask)
     if numba.get_num_threads() == 1:
         return body_contacts_serial(*args)
     return body_contacts_parallel(*args)
 
 
 @njit(cache=True)
-def body_contacts_serial(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+def body_contacts_serial(pos, radii, margin, kind, bpos, brot, bext, bnormal, awake):
     """:func:`body_contacts` in one pass into buffers sized for every sphere touching every
     body (memory that is reserved, not touched, beyond the hits)."""
     n = pos.shape[0]
@@ -102,7 +106,10 @@ def body_contacts_serial(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     gap = np.empty(n * nb)
     bound = np.sqrt(bext[:, 0] * bext[:, 0] + bext[:, 1] * bext[:, 1] + bext[:, 2] * bext[:, 2])
     k = 0
+    every = awake.shape[0] == 0
     for i in range(n):
+        if not (every or awake[i]):
+            continue
         x0, x1, x2, ri, mi = pos[i, 0], pos[i, 1], pos[i, 2], radii[i], margin[i]
         for b in range(nb):
             # The plane test and the box's bounding-sphere cull of _body_test, on scalars:
@@ -128,14 +135,15 @@ def body_contacts_serial(pos, radii, margin, kind, bpos, brot, bext, bnormal):
 
 
 @njit(parallel=True, cache=True)
-def body_contacts_parallel(pos, radii, margin, kind, bpos, brot, bext, bnormal):
+def body_contacts_parallel(pos, radii, margin, kind, bpos, brot, bext, bnormal, awake):
     """:func:`body_contacts` by count, then fill, each pass over the spheres in parallel."""
     n = pos.shape[0]
     nb = kind.shape[0]
     counts = np.zeros(n + 1, dtype=np.int64)
+    every = awake.shape[0] == 0
     for i in prange(n):
         c = 0
-        for b in range(nb):
+        for b in range(nb if every or awake[i] else 0):
             g, _, _, _ = _body_test(
                 pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b], bnormal[b]
             )
@@ -145,7 +153,7 @@ def body_contacts_parallel(pos, radii, margin, kind, bpos, brot, bext, bnormal):
     off, si, sb, nrm, gap = hit_buffers(counts)
     for i in prange(n):
         k = off[i]
-        for b in range(nb):
+        for b in range(nb if every or awake[i] else 0):
             g, n0, n1, n2 = _body_test(
                 pos[i], radii[i], margin[i], kind[b], bpos[b], brot[b], bext[b], bnormal[b]
             )

@@ -16,7 +16,8 @@ class StepStats:
     """Summary of one step.
 
     contacts: touching contacts (overlap > 0); speculative: near contacts (a gap smaller than
-    the contact margin) also handed to the solver; residual: RMS of the normal rows' last PGS
+    the contact margin) also handed to the solver (with ``solver.active_zone``, both count only
+    the contacts of awake spheres, the ones the step solves); residual: RMS of the normal rows' last PGS
     update, in m/s (→ 0 as the solver converges); max_overlap: largest overlap in m and
     max_overlap_fraction the largest overlap over the smaller radius, at the start of the step;
     step and time (s) after the step; iterations: solver sweeps run (at most

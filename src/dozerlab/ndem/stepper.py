@@ -91,34 +91,19 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     slab_of_column = broadphase.slab_partition(start, dims, p.slabs)
     n_slabs = int(slab_of_column.max()) + 1
     slab = slab_of_column[cells // int(dims[1] * dims[2])]
-    pairs = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims)
     body_speed = float(np.sqrt((bodies.vel**2).sum(axis=1)).max(initial=0.0))
     rot = bodies.rotations()
-    hits = contacts.body_contacts(
-        state.x,
-        state.r,
-        2.0 * (reach - state.r) + p.dt * body_speed,
-        bodies.kind,
-        bodies.center,
-        rot,
-        bodies.half,
-        bodies.normal,
-    )
-    invm = 1.0 / state.m
-    invI = 1.0 / (0.4 * state.m * state.r**2)
+    body_reach = 2.0 * (reach - state.r) + p.dt * body_speed
     zone = np.zeros(0, dtype=np.bool_)
     if p.active_zone:
-        zone = _wake(
+        zone = _wake_zone(
             state.awake,
             state.rest,
             state.x,
             state.v,
             state.w,
             state.r,
-            pairs[0],
-            pairs[1],
-            hits[0],
-            hits[1],
+            body_reach,
             bodies.kinematic & (bodies.kind == BOX),
             bodies.kind,
             bodies.center,
@@ -126,11 +111,92 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
             bodies.half,
             bodies.normal,
             p.zone_margin,
-            p.rest_speed,
         )
+        v0, w0 = state.v.copy(), state.w.copy()
+    while True:
+        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps = _solve_awake(
+            state, bodies, p, cells, start, dims, reach, slab, n_slabs, rot, body_reach
+        )
+        if not p.active_zone:
+            break
+        # a sleeper that the awake grains now load beyond what holds it still wakes, and the
+        # step is solved again with it: a grain jammed between the blade and a rigid sleeper
+        # would otherwise sink into it by the blade's travel every step
+        held = state.warm.held(state.public(~state.awake))[state.id]
+        if not _wake_loaded(state.awake, state.rest, ci, cj, lam, held):
+            break
+        state.v[:], state.w[:] = v0, w0
+    if p.active_zone:
+        state.warm.store(state.id, ci, cj, lam, state.public(~state.awake))
+        _wake_touched(state.awake, state.rest, ci, cj, state.v, p.rest_speed)
+    else:
+        state.warm.store(state.id, ci, cj, lam)
+    bodies.force, bodies.torque = contacts.body_loads(
+        ci, cj, cd, lam, state.x, bodies.center, nb, h
+    )
+    if solver.integrate(state.x, state.v, state.w, h):
+        _raise_non_finite(state, "after")
+    active = state.n
+    if p.active_zone:
+        active = _settle(
+            state.awake, state.rest, zone, state.v, state.w, state.r, h, p.rest_speed, p.rest_time
+        )
+    bodies.integrate(h)
+    state.time += h
+    state.step_count += 1
+    return StepStats(
+        step=state.step_count,
+        time=state.time,
+        contacts=touching,
+        speculative=ci.shape[0] - touching,
+        residual=float(residual),
+        max_overlap=gap_max,
+        max_overlap_fraction=frac_max,
+        iterations=int(sweeps),
+        active=int(active),
+    )
+
+
+def _solve_awake(
+    state: WorldState,
+    bodies: Bodies,
+    p: Parameters,
+    cells: np.ndarray,
+    start: np.ndarray,
+    dims: np.ndarray,
+    reach: np.ndarray,
+    slab: np.ndarray,
+    n_slabs: int,
+    rot: np.ndarray,
+    body_reach: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int]:
+    """Detect, assemble and solve the contacts of the awake spheres (all of them without the
+    active zone), gravity applied to them; velocities updated in place. Returns i, j, the
+    contact table, the multipliers, :func:`_check_overlap`'s figures, the residual (m/s) and
+    the sweeps run."""
+    h = p.dt
+    invm = 1.0 / state.m
+    invI = 1.0 / (0.4 * state.m * state.r**2)
+    awake = None
+    if p.active_zone:
+        awake = state.awake
         # a sleeping sphere is a fixed obstacle to the awake ones: infinite mass and inertia
         invm = invm * state.awake
         invI = invI * state.awake
+    # pairs of two sleeping spheres, and their contacts with bodies, are left out: neither
+    # side moves, so the step has nothing to solve there (the warm start keeps their impulses)
+    pairs = broadphase.sphere_pairs(state.x, state.r, reach, cells, start, dims, awake)
+    hits = contacts.body_contacts(
+        state.x,
+        state.r,
+        body_reach,
+        bodies.kind,
+        bodies.center,
+        rot,
+        bodies.half,
+        bodies.normal,
+        awake,
+    )
     nu = p.poisson_ratio
     estar = p.youngs_modulus / (2.0 * (1.0 - nu * nu))
     upsilon = 1.0 / (1.0 + 4.0 * p.damping_steps)
@@ -155,8 +221,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         upsilon,
         estar,
     )
-    frac_max, touching, gap_max = _check_overlap(state, p, ci, cj, gap)
-
+    overlap = _check_overlap(state, p, ci, cj, gap)
     if p.active_zone:
         state.v[state.awake] += h * p.gravity
     else:
@@ -192,76 +257,26 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
                 *(False, METHODS.index(p.method), p.tolerance, p.relaxation),
             )
             sweeps += more
-    state.warm.store(state.id, ci, cj, lam)
-    if p.active_zone:
-        _wake_loaded(
-            state.awake, state.rest, ci, cj, cd, lam, 1.0 / state.m, h * p.gravity, p.rest_speed
-        )
-    bodies.force, bodies.torque = contacts.body_loads(
-        ci, cj, cd, lam, state.x, bodies.center, nb, h
-    )
-    if solver.integrate(state.x, state.v, state.w, h):
-        _raise_non_finite(state, "after")
-    active = state.n
-    if p.active_zone:
-        active = _settle(
-            state.awake, state.rest, zone, state.v, state.w, state.r, h, p.rest_speed, p.rest_time
-        )
-    bodies.integrate(h)
-    state.time += h
-    state.step_count += 1
-    return StepStats(
-        step=state.step_count,
-        time=state.time,
-        contacts=touching,
-        speculative=ci.shape[0] - touching,
-        residual=float(residual),
-        max_overlap=gap_max,
-        max_overlap_fraction=frac_max,
-        iterations=int(sweeps),
-        active=int(active),
-    )
+    return ci, cj, cd, lam, overlap, float(residual), int(sweeps)
 
 
 @njit(cache=True)
-def _wake(
-    awake,
-    rest,
-    x,
-    v,
-    w,
-    r,
-    pi,
-    pj,
-    bi,
-    bb,
-    zone_body,
-    kind,
-    center,
-    rot,
-    half,
-    normal,
-    margin,
-    speed,
-):
-    """Wake the sleeping spheres that can move now, in place; returns which spheres lie in the
-    zone (N,) bool.
+def _wake_zone(awake, rest, x, v, w, r, reach, zone_body, kind, center, rot, half, normal, margin):
+    """Wake, in place, the sleeping spheres the zone reaches or whose velocity was set; returns
+    which spheres lie in the zone (N,) bool.
 
-    A sphere wakes when it lies within ``margin`` (m) of a body with ``zone_body`` (the blade),
-    when a sphere pair (``pi``, ``pj``) or body contact (``bi``, ``bb``) within contact reach
-    joins it to an awake sphere faster than ``speed`` (m/s) or to a zone body, or when its
-    velocity was set while it slept (a sleeping sphere's velocities are zero). A sphere woken
-    here has not moved yet, so it wakes no other this step: the zone grows with the motion.
+    A sphere is in the zone when it lies within ``margin`` (m), or within its body-contact
+    ``reach`` (N,) m, of a body with ``zone_body`` (the blade). A sleeping sphere's velocities
+    are zero, so a nonzero one was set from outside and wakes it too.
     """
     n = x.shape[0]
     zone = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         for b in range(kind.shape[0]):
             if zone_body[b]:
-                g = _body_test(x[i], r[i], margin, kind[b], center[b], rot[b], half[b], normal[b])[
-                    0
-                ]
-                if g > -margin:
+                m = max(margin, reach[i])
+                g = _body_test(x[i], r[i], m, kind[b], center[b], rot[b], half[b], normal[b])[0]
+                if g > -m:
                     zone[i] = True
         moved = False
         if not awake[i]:
@@ -270,53 +285,48 @@ def _wake(
         if zone[i] or moved:
             awake[i] = True
             rest[i] = 0.0
-    s2 = speed * speed
-    for k in range(pi.shape[0]):
-        i, j = pi[k], pj[k]
-        if awake[i] == awake[j]:
-            continue
-        a, b = (i, j) if awake[i] else (j, i)
-        if v[a, 0] * v[a, 0] + v[a, 1] * v[a, 1] + v[a, 2] * v[a, 2] > s2:
-            awake[b] = True
-            rest[b] = 0.0
-    for t in range(bi.shape[0]):
-        if zone_body[bb[t]]:
-            awake[bi[t]] = True
-            rest[bi[t]] = 0.0
     return zone
 
 
 @njit(cache=True)
-def _wake_loaded(awake, rest, ci, cj, cd, lam, invm, hg, speed):
-    """Wake, in place, the sleeping spheres that this step's impulses no longer hold still.
-
-    A sleeping sphere's contacts held it at rest when it fell asleep. Summed with gravity's
-    impulse ``hg`` (3,) m/s, the impulses ``lam`` (Nc, 7) of all its contacts now — the frozen
-    ones and those with awake spheres, solved against it as a fixed obstacle — would change its
-    velocity by Δv (``invm`` (N,) 1/kg, its own); beyond ``speed`` (m/s) it wakes, to move
-    from the next step on. So a load passed on through resting grains (a force chain ahead of
-    the pile) wakes them though nothing near them moves yet.
-    """
+def _wake_loaded(awake, rest, ci, cj, lam, held):
+    """Wake, in place, the sleeping spheres whose contacts with awake spheres carry normal
+    impulses ``lam[:, 0]`` (N·s) summing to more than ``held`` (N,) N·s, those of its contacts
+    with other sleepers and bodies, which hold it still; returns how many woke. At rest the
+    awake grains lean on a sleeper no harder than its resting contacts hold it; a pile pushing
+    into it, or a grain jammed between it and the blade, outgrows them."""
     n = awake.shape[0]
-    dv = np.zeros((n, 3))
+    pushed = np.zeros(n)
     for k in range(ci.shape[0]):
         i, j = ci[k], cj[k]
-        si = not awake[i]
-        sj = j >= 0 and not awake[j]
-        if not (si or sj):
-            continue
-        for a in range(3):
-            f = lam[k, 0] * cd[k, contacts.N0 + a] + lam[k, 1 + a]
-            if si:
-                dv[i, a] += invm[i] * f
-            if sj:
-                dv[j, a] -= invm[j] * f
-    s2 = speed * speed
+        if j >= 0 and awake[i] != awake[j]:
+            pushed[j if awake[i] else i] += lam[k, 0]
+    count = 0
     for i in range(n):
-        if awake[i]:
+        if not awake[i] and pushed[i] > held[i]:
+            awake[i] = True
+            rest[i] = 0.0
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def _wake_touched(awake, rest, ci, cj, v, speed):
+    """Wake, in place, the sleeping spheres that a contact row of this step joins to an awake
+    sphere moving faster than ``speed`` (m/s) after the solve; they move from the next step on.
+    """
+    n = awake.shape[0]
+    hit = np.zeros(n, dtype=np.bool_)
+    s2 = speed * speed
+    for k in range(ci.shape[0]):
+        i, j = ci[k], cj[k]
+        if j < 0 or awake[i] == awake[j]:
             continue
-        d0, d1, d2 = dv[i, 0] + hg[0], dv[i, 1] + hg[1], dv[i, 2] + hg[2]
-        if d0 * d0 + d1 * d1 + d2 * d2 > s2:
+        a, b = (i, j) if awake[i] else (j, i)
+        if v[a, 0] * v[a, 0] + v[a, 1] * v[a, 1] + v[a, 2] * v[a, 2] > s2:
+            hit[b] = True
+    for i in range(n):
+        if hit[i]:
             awake[i] = True
             rest[i] = 0.0
 
