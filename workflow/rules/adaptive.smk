@@ -1,48 +1,9 @@
 # An adaptive sweep (sweep.adaptive, docs/adaptive.md). One checkpoint per round writes the
-# round's points (round 0: the initial design); the input functions below read them back once
+# round's points (round 0: the initial design); the input functions (common.smk) read them back once
 # written, and Snakemake re-evaluates the DAG: the round's NDEM runs (rule simulate), the models
 # trained on the runs so far and their validations (adaptive_train, adaptive_validate) are
 # ordinary jobs, and round r + 1's checkpoint waits for round r's runs.
-ADAPTIVE = config["sweep"]["adaptive"]
-ADAPTIVE_ROUNDS = list(range(ADAPTIVE["rounds"] + 1))
-if ADAPTIVE["enabled"] and not HELD_OUT:
-    # the rounds' errors and the learning curve are measured on them
-    raise runtime.ConfigError(
-        "config field 'sweep.adaptive.enabled': an adaptive sweep needs held-out points "
-        "(allowed: sweep.interpolation or sweep.extrapolation not empty)"
-    )
-
-
-def adaptive_points_file(r):
-    """Round r's points.csv, once its checkpoint has run (else Snakemake runs it first)."""
-    return checkpoints.adaptive_points.get(round=str(r)).output[0]
-
-
-def adaptive_round_points(r):
-    """The sweep points of round r, read from its points.csv."""
-    from dozerlab.adaptive.design import read_points
-
-    return [s.point for s in read_points(adaptive_points_file(r))]
-
-
-def adaptive_runs_through(r):
-    """The field stores of the NDEM runs of rounds 0 … r (none for r < 0)."""
-    return [str(P.field_path(RESULTS, p)) for k in range(r + 1) for p in adaptive_round_points(k)]
-
-
-def adaptive_points_input(wildcards):
-    """A round's checkpoint reads the points of the rounds before it and their NDEM runs."""
-    r = int(wildcards.round)
-    return {"previous": [adaptive_points_file(k) for k in range(r)], "stores": adaptive_runs_through(r - 1)}
-
-
-def adaptive_curve_stores(wildcards):
-    """The stores the learning curve trains on: the adaptive design's and, with compare, the
-    grid's and the random designs' (dozerlab.adaptive.jobs.design_points)."""
-    from dozerlab.adaptive.jobs import design_points
-
-    rounds = [adaptive_round_points(r) for r in ADAPTIVE_ROUNDS]
-    return [str(P.field_path(RESULTS, p)) for p in design_points(config, rounds)]
+# Its config, checks and input functions are in common.smk.
 
 
 wildcard_constraints:
@@ -150,17 +111,3 @@ rule adaptive_curve:
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab adaptive-curve --config {params.cfg:q} --rounds {input.rounds:q}"
         " --results {params.results:q} --out {output.csv:q} --plots {output.plots:q} --threads {threads} > {log:q} 2>&1"
-
-
-def adaptive_report_inputs():
-    """What the report shows of an adaptive sweep: its learning curve (nothing without one)."""
-    return [P.pattern("learning_curve"), P.pattern("learning_curve_plots")] if ADAPTIVE["enabled"] else []
-
-
-def adaptive_targets():
-    """What rule all builds for an adaptive sweep: every round's record and the learning curve,
-    and with compare (the grid's runs are made anyway) the report, whose sections show the grid's
-    models beside the adaptive section."""
-    records = [str(P.adaptive_path("adaptive_record", RESULTS, r)) for r in ADAPTIVE_ROUNDS]
-    page = [P.pattern("report"), P.pattern("report_animations")] if ADAPTIVE["compare"] else []
-    return records + adaptive_report_inputs() + page
