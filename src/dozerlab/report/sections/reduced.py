@@ -10,7 +10,7 @@ import math
 from typing import Any
 
 from dozerlab.report import html
-from dozerlab.report.sections import GROUP_LABELS, Context
+from dozerlab.report.sections import GROUP_LABELS, Context, result_file
 from dozerlab.sweep import fmt_number, reduced_comparison_path
 
 TITLE = "Reduced simulation against NDEM"
@@ -266,8 +266,8 @@ def render(ctx: Context) -> str | None:
             missed = [k for k, ok in p["targets_met"].items() if ok is False]
             figs = []
             for name in p["plots"]:
-                file = plots / name
-                if not file.is_file():
+                file = result_file(ctx.results, plots, name, path)
+                if file is None:
                     continue
                 kind = name.rsplit("_", 1)[-1].split(".")[0]
                 if name.endswith(".gif"):
@@ -275,7 +275,7 @@ def render(ctx: Context) -> str | None:
                         html.animation(
                             file,
                             ctx.page_dir,
-                            f"reduced_{model}_{name}",
+                            f"reduced_{model}_{file.name}",
                             f"{label}: NDEM (left) and reduced (right)",
                         )
                     )
