@@ -22,8 +22,23 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "targets: smoothed-surface skill ≥ 0.95, loop ≥ 40×, job ≥ 10×, "
         "overlap ≤ 10% of a radius, nothing left the bed" in text
     )
+    # on top, a row per model: the means of the headline figures, the twin's, the targets met
+    assert table_cells(text, 0) == [
+        "replay",
+        "linear-loop",
+        "72.0",
+        "90.0",
+        "0.80",
+        "8.0",
+        "10.0",
+        "0.80",
+        "62.0",
+        "–",
+        "1 of 2",  # job_speedup is not judged without NDEM's job time
+    ]
     # on the scales NDEM reproduces: each figure, the twin's, the skill
-    headings = re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", text)
+    second = re.findall(r"<table>(.*?)</table>", text, re.S)[1]
+    headings = re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", second)
     assert headings[:11] == [
         "point",
         "group",
@@ -37,7 +52,7 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "twin (%)",
         "skill (×)",
     ]
-    assert table_cells(text, 0)[2:] == [
+    assert table_cells(text, 1)[2:] == [
         "72.0",
         "90.0",
         "0.80",
@@ -49,7 +64,7 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "2.00",
     ]
     # the grain scale and the fields, beside the twin's
-    assert table_cells(text, 1)[2:] == [
+    assert table_cells(text, 2)[2:] == [
         "90.0",
         "75.0",
         "30.0",
@@ -61,7 +76,7 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "4.2",
         "1",
     ]
-    assert table_cells(text, 2)[2:] == ["5.0", "0", "62.0", "–"]
+    assert table_cells(text, 3)[2:] == ["5.0", "0", "62.0", "–"]
     assert (
         "<summary>hill: speed 0.75 m/s, depth 0.1 m — targets missed: replay_surface_skill</summary>"
         in text
@@ -73,8 +88,8 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
     assert f'<img src="animations/{name}"' in text
     assert (tmp_path / "report" / "animations" / name).read_bytes() == b"GIF89a"
     assert (
-        "<p>replay fields and the linear-loop force model: smoothed-surface accuracy 72.0 % (the "
-        "twin&#x27;s 90.0 %, skill 0.80)" in text
+        "<p>replay fields and the linear-loop force model on 1 held-out point: targets met on "
+        "every point: loop_speedup; missed: replay_surface_skill (1 of 1).</p>" in text
     )
 
 
@@ -97,28 +112,48 @@ def test_without_twins_the_tables_hold_the_figures_alone(tmp_path):
     cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
     text = reduced.render(report_context(cfg, tmp_path))
     assert "twin (%)" not in text and "no twin runs" in text
-    assert table_cells(text, 0)[2:] == ["72.0", "8.0", "2.0"]
-    assert "smoothed-surface accuracy 72.0 %, low-passed" in text
+    assert table_cells(text, 0) == ["ridge", "linear-loop", "72.0", "8.0", "62.0", "–", "2 of 3"]
+    assert table_cells(text, 1)[2:] == ["72.0", "8.0", "2.0"]
+    assert reduced.verdict(report_context(cfg, tmp_path)) == (
+        "ridge is the best learned evolution model: smoothed-surface accuracy 72.0 %, low-passed "
+        "force error 8.0 %, loop 62.0× as fast as NDEM; 2 of 3 targets met on every held-out "
+        "point."
+    )
 
 
-def test_the_verdict_is_the_learned_models_then_the_replay_control(tmp_path):
-    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["replay", "ridge"]}})
+def test_the_verdict_is_the_best_learned_model_else_the_replay_control(tmp_path):
+    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["replay", "ridge", "unet"]}})
     assert reduced.verdict(report_context(cfg, tmp_path)) is None
     reduced_json(tmp_path, "replay")
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "replay fields and the linear-loop force model: smoothed-surface accuracy 72.0 % (the "
-        "twin's 90.0 %, skill 0.80), low-passed draft force rel. RMSE 8.0 % (the twin's 10.0 %, "
-        "skill 0.80), grain-scale height accuracy 90.0 %, loop 62.0× as fast as NDEM's (mean of 1 "
-        "held-out point); targets met on every point: loop_speedup; missed: "
-        "replay_surface_skill (1 of 1)."
+        "replay (NDEM's own fields: the loop's own error): smoothed-surface skill 0.80, "
+        "low-passed force error 0.80× the twin's, loop 62.0× as fast as NDEM; 1 of 2 targets "
+        "met on every held-out point."
     )
     reduced_json(tmp_path, "ridge")
-    verdict = reduced.verdict(report_context(cfg, tmp_path))
-    assert verdict.startswith("ridge fields and the linear-loop force model: smoothed-surface")
-    assert "targets met on every point: force_skill, loop_speedup; missed: surface_skill" in verdict
-    assert verdict.endswith(
-        "Control, replay (NDEM's own fields: the loop's own error): smoothed-surface accuracy "
-        "72.0 % (the twin's 90.0 %, skill 0.80), low-passed draft force rel. RMSE 8.0 % (the "
-        "twin's 10.0 %, skill 0.80); targets met on every point: loop_speedup; missed: "
-        "replay_surface_skill (1 of 1)."
+    assert reduced.verdict(report_context(cfg, tmp_path)) == (
+        "ridge is the best learned evolution model: smoothed-surface skill 0.80, low-passed "
+        "force error 0.80× the twin's, loop 62.0× as fast as NDEM; 2 of 3 targets met on every "
+        "held-out point."
     )
+    # the highest mean smoothed-surface skill wins, whatever the order of the models
+    reduced_json(tmp_path, "unet")
+    path = tmp_path / "reduced" / "unet.json"
+    doc = json.loads(path.read_text())
+    doc["points"][0] |= {"surface_accuracy_skill": 0.85, "job_speedup": 12.0}
+    doc["points"][0]["targets_met"] |= {"surface_skill": False, "job_speedup": True}
+    path.write_text(json.dumps(doc))
+    assert reduced.verdict(report_context(cfg, tmp_path)) == (
+        "unet is the best learned evolution model: smoothed-surface skill 0.85, low-passed "
+        "force error 0.80× the twin's, loop 62.0× and job 12.0× as fast as NDEM; 3 of 4 targets "
+        "met on every held-out point."
+    )
+    # the section's table: a row per model, in the config's order
+    text = reduced.render(report_context(cfg, tmp_path))
+    first = re.findall(r"<table>(.*?)</table>", text, re.S)[0]
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", r) for r in re.findall(r"<tr>(.*?)</tr>", first)]
+    assert [(r[0], r[4], r[9], r[10]) for r in rows if r] == [
+        ("replay", "0.80", "–", "1 of 2"),
+        ("ridge", "0.80", "–", "2 of 3"),
+        ("unet", "0.85", "12.0", "3 of 4"),
+    ]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import json
 import pkgutil
+import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,13 +97,13 @@ def model_comparison(
     models: Iterable[str],
     path_of: Callable[[Path, str], Path],
     compare: Callable[[dict[str, dict[str, Any]]], Comparison],
-    detail: Callable[[str, Path, dict[str, Any]], str],
+    detail: Callable[[Context, str, Path, dict[str, Any]], str],
     anchor: str,
 ) -> str | None:
     """A section comparing models by the JSON documents the results hold of them
     (``path_of(results, model)``; None when there is none yet): ``compare(documents)``'s lead
     paragraph, chart (an HTML figure), table and caption, then per model a collapsed block of
-    ``detail(model, path, document)`` with the id ``{anchor}-{model}``."""
+    ``detail(ctx, model, path, document)`` with the id ``{anchor}-{model}``."""
     found = documents(ctx, models, path_of)
     if not found:
         return None
@@ -114,7 +115,7 @@ def model_comparison(
         html.paragraph(c.caption, "caption"),
     ]
     parts += [
-        html.details(f"{m}: per-point errors and plots", detail(m, path, doc), f"{anchor}-{m}")
+        html.details(f"{m}: per-point errors and plots", detail(ctx, m, path, doc), f"{anchor}-{m}")
         for m, (path, doc) in found.items()
     ]
     return "\n".join(parts)
@@ -131,3 +132,35 @@ def group_rows(
         for g in GROUPS
         if g in doc["groups"]
     ]
+
+
+def result_file(results: Path, folder: Path, name: Any, document: Path) -> Path | None:
+    """The file a result JSON (``document``) names, ``name`` relative to ``folder``, or None
+    with a warning on stderr when it is not a file inside ``results``: the report reads only
+    what the sweep wrote, never where a damaged or hand-edited document points."""
+    if isinstance(name, str) and name:
+        file = (folder / name).resolve()
+        if not file.is_relative_to(results.resolve()):
+            why = "is outside the results folder"
+        elif not file.is_file():
+            why = "is not a file"
+        else:
+            return file
+    else:
+        why = "is not a file name"
+    print(f"dozerlab report: {document} names {name!r}, which {why}: skipped", file=sys.stderr)
+    return None
+
+
+def result_figures(
+    results: Path, folder: Path, images: Iterable[tuple[Any, str]], document: Path
+) -> str:
+    """The embedded figures of ``(name, caption)`` pairs a result JSON (``document``) lists,
+    each name relative to ``folder`` (None: the document has no such figure); a name that is not
+    a file inside ``results`` is skipped (:func:`result_file`)."""
+    files = (
+        (result_file(results, folder, name, document), caption)
+        for name, caption in images
+        if name is not None
+    )
+    return "".join(html.figure(file, caption) for file, caption in files if file)

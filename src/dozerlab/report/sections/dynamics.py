@@ -19,6 +19,7 @@ from dozerlab.report.sections import (
     documents,
     group_rows,
     model_comparison,
+    result_figures,
 )
 from dozerlab.report.sections.models import _point
 from dozerlab.sweep import dynamics_validation_path
@@ -166,7 +167,7 @@ def _verdict(docs: dict[str, dict[str, Any]]) -> str:
     return "Best model per held-out group — " + "; ".join(lines) + "." if lines else ""
 
 
-def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
+def _model(ctx: Context, model: str, path: Path, doc: dict[str, Any]) -> str:
     facts = [doc.get("summary", ""), f"history {doc['history']} rows, horizon {doc['horizon']}"]
     if doc.get("train_seconds") is not None:
         facts.append(f"training took {doc['train_seconds']:.0f} s")
@@ -180,16 +181,11 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
         (p, f"{model}, {label}: density on the centre plane, predicted over true")
         for label, p in (plots.get("slices") or {}).items()
     ]
-    figures = [
-        html.figure(path.parent / rel, caption)
-        for rel, caption in images
-        if rel and (path.parent / rel).is_file()
-    ]
     columns = [html.Column("point", text=True), html.Column("held-out group", text=True), *COLUMNS]
     return (
         html.paragraph("; ".join(f for f in facts if f) + ".")
         + html.table(columns, rows)
-        + "".join(figures)
+        + result_figures(ctx.results, path.parent, images, path)
     )
 
 

@@ -19,6 +19,7 @@ from dozerlab.report.sections import (
     documents,
     group_rows,
     model_comparison,
+    result_figures,
 )
 from dozerlab.sweep import fmt_number, validation_path
 
@@ -127,7 +128,7 @@ def _best(results: dict[str, dict[str, Any]]) -> str:
     return "Lowest force_x relative RMSE: " + "; ".join(best) + "." if best else ""
 
 
-def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
+def _model(ctx: Context, model: str, path: Path, doc: dict[str, Any]) -> str:
     train = doc.get("training") or {}
     facts = [doc.get("summary", "")]
     if train.get("epochs"):
@@ -155,15 +156,10 @@ def _model(model: str, path: Path, doc: dict[str, Any]) -> str:
             for label, p in plots.get("series", {}).items()
         ),
     ]
-    figures = [
-        html.figure(path.parent / rel, caption)
-        for rel, caption in images
-        if rel and (path.parent / rel).is_file()
-    ]
     return (
         html.paragraph("; ".join(f for f in facts if f) + ".")
         + html.table(_columns("point"), rows)
-        + "".join(figures)
+        + result_figures(ctx.results, path.parent, images, path)
     )
 
 

@@ -10,7 +10,7 @@ import math
 from typing import Any
 
 from dozerlab.report import html
-from dozerlab.report.sections import GROUP_LABELS, Context
+from dozerlab.report.sections import GROUP_LABELS, Context, result_file
 from dozerlab.sweep import fmt_number, reduced_comparison_path
 
 TITLE = "Reduced simulation against NDEM"
@@ -95,15 +95,6 @@ def _mean(points: list[dict[str, Any]], key: str) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-def _against_twin(points: list[dict[str, Any]], key: str, name: str) -> str:
-    """``name X`` (a mean over the points, in %) and, with a twin, ``(twin Y, skill Z)``."""
-    text = f"{name} {html.percent(_mean(points, key))}"
-    twin, skill = _mean(points, f"twin_{key}"), _mean(points, f"{key}_skill")
-    if twin is None:
-        return text
-    return text + f" (the twin's {html.percent(twin)}, skill {_ratio(skill)})"
-
-
 def _targets_said(points: list[dict[str, Any]]) -> str:
     """Which targets every point meets and which some miss (on how many points)."""
     n = len(points)
@@ -122,57 +113,113 @@ def _targets_said(points: list[dict[str, Any]]) -> str:
     return said
 
 
+def _targets_count(points: list[dict[str, Any]]) -> tuple[int, int]:
+    """(targets met on every point, targets judged): a target counts once it is judged on some
+    point (a speed-up without a measured NDEM wall time is not), met when no point misses it."""
+    known = {k for p in points for k, ok in p["targets_met"].items() if ok is not None}
+    missed = {k for p in points for k, ok in p["targets_met"].items() if ok is False}
+    return len(known - missed), len(known)
+
+
+def _force_models(points: list[dict[str, Any]]) -> str:
+    return ", ".join(sorted({str(p.get("force_model")) for p in points}))
+
+
 def _model_verdict(model: str, doc: dict[str, Any]) -> str:
-    """One sentence on one dynamics model's reduced runs: on the scales NDEM reproduces the
-    smoothed-surface accuracy and the low-passed force error beside the twin's, with the skills,
-    the grain-scale height accuracy, the speed-ups (means over the held-out points), and the
-    targets met and missed."""
+    """One short sentence on one dynamics model's reduced runs: its force model, the number of
+    held-out points and the targets met and missed; the figures are in the tables."""
     points = doc["points"]
     n = len(points)
-    forces = ", ".join(sorted({str(p.get("force_model")) for p in points}))
-    figures = [
-        _against_twin(points, "surface_accuracy", "smoothed-surface accuracy"),
-        _against_twin(points, "force_lp_rel_rmse", "low-passed draft force rel. RMSE"),
-        f"grain-scale height accuracy {html.percent(_mean(points, 'height_accuracy'))}",
-    ]
-    for key, name in (("loop_speedup", "loop"), ("job_speedup", "job")):
-        if (value := _mean(points, key)) is not None:
-            figures.append(f"{name} {value:.1f}× as fast as NDEM's")
     return (
-        f"{model} fields and the {forces} force model: {', '.join(figures)} (mean of {n} "
-        f"held-out point{'s' if n != 1 else ''}); {_targets_said(points)}."
+        f"{model} fields and the {_force_models(points)} force model on {n} held-out "
+        f"point{'s' if n != 1 else ''}: {_targets_said(points)}."
     )
 
 
+def _headline(who: str, points: list[dict[str, Any]]) -> str:
+    """The headline of one model's runs (``who``: its name and what it is), means over the
+    held-out points: the smoothed-surface
+    and low-passed force skills against the twin (the figures alone without one), the loop and
+    job speed-ups and the targets met."""
+    figures = []
+    if _has_twin(points):
+        figures.append(f"smoothed-surface skill {_ratio(_mean(points, 'surface_accuracy_skill'))}")
+        force = _mean(points, "force_lp_rel_rmse_skill")
+        figures.append(f"low-passed force error {_ratio(force)}× the twin's")
+    else:
+        figures.append(
+            f"smoothed-surface accuracy {html.percent(_mean(points, 'surface_accuracy'))}"
+        )
+        force = _mean(points, "force_lp_rel_rmse")
+        figures.append(f"low-passed force error {html.percent(force)}")
+    speeds = [
+        f"{name} {value:.1f}×"
+        for key, name in (("loop_speedup", "loop"), ("job_speedup", "job"))
+        if (value := _mean(points, key)) is not None
+    ]
+    if speeds:
+        figures.append(" and ".join(speeds) + " as fast as NDEM")
+    met, judged = _targets_count(points)
+    return f"{who}: {', '.join(figures)}; {met} of {judged} targets met on every held-out point."
+
+
 def verdict(ctx: Context) -> str | None:
-    """The reduced simulation's verdict: that of each learned dynamics model, then the replay
-    control's figures, which bound what the loop alone can reach."""
+    """The reduced simulation's headline: the best learned dynamics model (highest mean
+    smoothed-surface skill, accuracy without twins) or, with none, the replay control; the
+    table of the section holds every model's figures."""
     docs = _documents(ctx)
-    learned = [_model_verdict(m, d) for m, d in docs.items() if m != REPLAY]
-    skills = {
-        m: s
-        for m, d in docs.items()
-        if m != REPLAY and (s := _mean(d["points"], "surface_accuracy_skill")) is not None
-    }
-    if len(skills) > 1:
-        best = max(skills, key=skills.__getitem__)
-        force = _mean(docs[best]["points"], "force_lp_rel_rmse_skill")
-        learned.insert(
-            0,
-            f"Best learned evolution model on the smoothed surface: {best} (skill "
-            f"{_ratio(skills[best])}, low-passed draft force error {_ratio(force)}× the twin's).",
+    learned = {m: d["points"] for m, d in docs.items() if m != REPLAY and d["points"]}
+    if learned:
+        key = (
+            "surface_accuracy_skill"
+            if any(map(_has_twin, learned.values()))
+            else "surface_accuracy"
         )
-    if REPLAY in docs:
-        points = docs[REPLAY]["points"]
-        control = (
-            "Control, replay (NDEM's own fields: the loop's own error): "
-            + _against_twin(points, "surface_accuracy", "smoothed-surface accuracy")
-            + ", "
-            + _against_twin(points, "force_lp_rel_rmse", "low-passed draft force rel. RMSE")
-            + f"; {_targets_said(points)}."
-        )
-        learned.append(control if learned else _model_verdict(REPLAY, docs[REPLAY]))
-    return " ".join(learned) or None
+        best = max(learned, key=lambda m: _mean(learned[m], key) or -math.inf)
+        return _headline(f"{best} is the best learned evolution model", learned[best])
+    if docs.get(REPLAY, {}).get("points"):
+        who = f"{REPLAY} (NDEM's own fields: the loop's own error)"
+        return _headline(who, docs[REPLAY]["points"])
+    return None
+
+
+#: The models table's figures, means over a model's held-out points: (key, column); the twin's
+#: and the skills only where twins ran.
+MODEL_FIGURES = [
+    ("surface_accuracy", html.Column("smoothed-surface accuracy", "%", _pct)),
+    ("twin_surface_accuracy", html.Column("twin", "%", _pct)),
+    ("surface_accuracy_skill", html.Column("surface skill", "×", _ratio)),
+    ("force_lp_rel_rmse", html.Column("low-passed force error", "%", _pct)),
+    ("twin_force_lp_rel_rmse", html.Column("twin", "%", _pct)),
+    ("force_lp_rel_rmse_skill", html.Column("force skill", "×", _ratio)),
+    ("loop_speedup", html.Column("loop speed-up", "×", _times)),
+    ("job_speedup", html.Column("job speed-up", "×", _times)),
+]
+
+
+def _models_table(docs: dict[str, dict[str, Any]]) -> str:
+    """A row per dynamics model: its force model, the mean over its held-out points of each
+    headline figure (beside the twin's, with the skill, where twins ran) and its targets met on
+    every point of those judged."""
+    twin = any(_has_twin(d["points"]) for d in docs.values())
+    figures = [(k, c) for k, c in MODEL_FIGURES if twin or not k.startswith("twin_")]
+    figures = [(k, c) for k, c in figures if twin or not k.endswith("_skill")]
+    columns = [
+        html.Column("model", text=True),
+        html.Column("force model", text=True),
+        *(c for _, c in figures),
+        html.Column("targets met", text=True),
+    ]
+    rows = [
+        [
+            model,
+            _force_models(doc["points"]),
+            *(_mean(doc["points"], k) for k, _ in figures),
+            "{} of {}".format(*_targets_count(doc["points"])),
+        ]
+        for model, doc in docs.items()
+    ]
+    return html.table(columns, rows)
 
 
 def _caption(t: dict[str, Any], replay: bool) -> str:
@@ -200,8 +247,20 @@ def _documents(ctx: Context) -> dict[str, dict[str, Any]]:
 
 
 def render(ctx: Context) -> str | None:
-    parts = []
-    for model, doc in _documents(ctx).items():
+    docs = _documents(ctx)
+    if not docs:
+        return None
+    parts = [
+        _models_table(docs),
+        html.paragraph(
+            "Means over the held-out points. The skill is the run's figure over NDEM's twin's "
+            "(NDEM again from the bed moved by a micrometre: its own reproducibility); a target "
+            "counts once judged on some point and is met when every point meets it. replay "
+            "feeds the loop NDEM's own fields: a control, the loop's own error.",
+            "caption",
+        ),
+    ]
+    for model, doc in docs.items():
         path = reduced_comparison_path(ctx.results, model)
         t = doc["targets"]
         parts.append(f"<h3>{html.esc(model)}</h3>")
@@ -266,8 +325,8 @@ def render(ctx: Context) -> str | None:
             missed = [k for k, ok in p["targets_met"].items() if ok is False]
             figs = []
             for name in p["plots"]:
-                file = plots / name
-                if not file.is_file():
+                file = result_file(ctx.results, plots, name, path)
+                if file is None:
                     continue
                 kind = name.rsplit("_", 1)[-1].split(".")[0]
                 if name.endswith(".gif"):
@@ -275,7 +334,7 @@ def render(ctx: Context) -> str | None:
                         html.animation(
                             file,
                             ctx.page_dir,
-                            f"reduced_{model}_{name}",
+                            f"reduced_{model}_{file.name}",
                             f"{label}: NDEM (left) and reduced (right)",
                         )
                     )
@@ -283,4 +342,4 @@ def render(ctx: Context) -> str | None:
                     figs.append(html.figure(file, f"{label}: {kind}"))
             summary = label + (f" — targets missed: {', '.join(missed)}" if missed else "")
             parts.append(html.details(summary, "".join(figs)))
-    return "\n".join(parts) if parts else None
+    return "\n".join(parts)
