@@ -65,13 +65,15 @@ def main() -> None:
     write_curve(Path(args.out), rows)
     print(f"learning curve: {len(rows)} rows in {time.perf_counter() - t0:.0f} s -> {args.out}")
     for column in ("heldout_force_rel_rmse", *LOOP_COLUMNS):
-        print(column, "(%)")
+        # errors as percentages, the skill (an error over the twin's) as a ratio
+        scale = 1 if column.endswith("_skill") else 100
+        print(column, "" if scale == 1 else "(%)")
         for name in ("adaptive", "grid", "random"):
             by_size = mean_by_size(rows, name, column)
-            print(" ", name, {n: round(100 * e, 2) for n, e in by_size.items()})
+            print(" ", name, {n: round(scale * e, 3) for n, e in by_size.items()})
             if name == "random":
                 spread = {
-                    n: (round(100 * min(v), 2), round(100 * max(v), 2))
+                    n: (round(scale * min(v), 3), round(scale * max(v), 3))
                     for n in by_size
                     if (v := [r[column] for r in rows if r["design"] == name and r["runs"] == n])
                 }
