@@ -89,7 +89,7 @@ rule adaptive_record:
     params:
         cfg=lambda wc: config_json("seed", "sweep", "mlflow", "reduced", fields={"reduced": REDUCED_CURVE_FIELDS}),
         validations=lambda wc, input: flag("validations", input.validations),
-        models=lambda wc, input: flag("models", input.models) if input.loops else "",
+        models=lambda wc, input: flag("models", input.models),
         results=lambda wc: RESULTS,
     shell:
         "python -m dozerlab adaptive-record --config {params.cfg:q} --rounds {input.rounds:q} {params.validations}"

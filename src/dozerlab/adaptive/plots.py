@@ -34,16 +34,21 @@ def learning_curve_figure(rows: Sequence[Mapping[str, Any]]) -> Any:
     in the rows, a second panel: its low-passed pushing-force error on the held-out points'
     replay loops, and the twins' (NDEM's own reproducibility) as a line."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     loop = any(np.isfinite(r["reduced_force_lp_rel_rmse"]) for r in rows)
-    panels = [("heldout_force_rel_rmse", "force model: held-out force_x rel. RMSE (%)")]
+    panels = [("heldout_force_rel_rmse", "force model", "held-out force_x rel. RMSE (%)")]
     if loop:
         panels.append(
-            ("reduced_force_lp_rel_rmse", "reduced simulation: low-passed force_x rel. RMSE (%)")
+            (
+                "reduced_force_lp_rel_rmse",
+                "reduced simulation (replay loop)",
+                "low-passed force_x rel. RMSE (%)",
+            )
         )
     fig = Figure(figsize=(5.5 * len(panels), 3.8))
     axes = np.atleast_1d(fig.subplots(1, len(panels)))
-    for ax, (column, label) in zip(axes, panels, strict=True):
+    for ax, (column, title, label) in zip(axes, panels, strict=True):
         for r in rows:
             if r["design"] == "random":
                 ax.plot(r["runs"], 100 * r[column], ".", color="C1", alpha=0.35)
@@ -58,8 +63,10 @@ def learning_curve_figure(rows: Sequence[Mapping[str, Any]]) -> Any:
             twin = [r["twin_force_lp_rel_rmse"] for r in rows]
             if np.isfinite(twin).any():
                 ax.axhline(100 * float(np.nanmean(twin)), color="0.5", ls=":", label="twin NDEM")
+        ax.set_title(title)
         ax.set_xlabel("NDEM training runs")
         ax.set_ylabel(label)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
