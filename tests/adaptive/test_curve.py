@@ -125,3 +125,11 @@ def test_curve_rows_measure_each_set_in_the_loop_and_keep_the_columns(stores, tm
         rows[0]["reduced_force_lp_rel_rmse"], rel=1e-5
     )
     assert np.isnan(back[-1]["reduced_force_lp_rel_rmse_skill"])
+
+
+def test_a_curve_written_before_the_reduced_columns_reads_with_them_empty(tmp_path):
+    path = tmp_path / "learning_curve.csv"
+    path.write_text(",".join(COLUMNS[:7]) + "\nadaptive,-1,8,linear,0.09,0.08,0.1\n")
+    (row,) = read_curve(path)
+    assert row["runs"] == 8 and row["reduced_force_model"] == ""
+    assert all(np.isnan(row[k]) for k in LOOP_COLUMNS)

@@ -248,11 +248,14 @@ def write_curve(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
 
 
 def read_curve(path: str | Path) -> list[dict[str, Any]]:
-    """The rows of ``learning_curve.csv``, numbers parsed."""
+    """The rows of ``learning_curve.csv``, numbers parsed; a curve written before the reduced
+    simulation's columns reads with them empty (``""``, NaN)."""
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
+    empty = {"reduced_force_model": ""} | dict.fromkeys(LOOP_COLUMNS, float("nan"))
     return [
-        {
+        empty
+        | {
             k: (v if k in TEXT_COLUMNS else int(v) if k in ("seed", "runs") else float(v))
             for k, v in r.items()
         }
