@@ -2,9 +2,11 @@
 
 Replays config/adaptive.yaml's rounds (their picks read from the stores of a finished default
 sweep, so the candidates must be runs there: the grid's lattice) and computes the learning curve
-of the adaptive design, the grid and random designs of the same sizes on the held-out points:
+of the adaptive design, the grid and random designs of the same sizes on the held-out points,
+and (where the results hold the held-out points' replay runs) the reduced simulation's
+low-passed pushing-force error of each training set's force model in the replay loops:
 
-    python benchmarks/adaptive_curve.py --results /tmp/defsweep/results --out /tmp/curve.csv
+    python benchmarks/adaptive_curve.py --results /tmp/v1/results --out /tmp/curve.csv
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import time
 from pathlib import Path
 
 from dozerlab.adaptive import design
-from dozerlab.adaptive.curve import mean_by_size, write_curve
+from dozerlab.adaptive.curve import LOOP_COLUMNS, mean_by_size, write_curve
 from dozerlab.adaptive.jobs import comparison_designs, learning_curve, read_run
 from dozerlab.config import load_config, read_yaml
 from dozerlab.sweep import field_path
@@ -62,8 +64,20 @@ def main() -> None:
     )
     write_curve(Path(args.out), rows)
     print(f"learning curve: {len(rows)} rows in {time.perf_counter() - t0:.0f} s -> {args.out}")
-    for name in ("adaptive", "grid", "random"):
-        print(name, {n: round(100 * e, 2) for n, e in mean_by_size(rows, name).items()})
+    for column in ("heldout_force_rel_rmse", *LOOP_COLUMNS):
+        # errors as percentages, the skill (an error over the twin's) as a ratio
+        scale = 1 if column.endswith("_skill") else 100
+        print(column, "" if scale == 1 else "(%)")
+        for name in ("adaptive", "grid", "random"):
+            by_size = mean_by_size(rows, name, column)
+            print(" ", name, {n: round(scale * e, 3) for n, e in by_size.items()})
+            if name == "random":
+                spread = {
+                    n: (round(scale * min(v), 3), round(scale * max(v), 3))
+                    for n in by_size
+                    if (v := [r[column] for r in rows if r["design"] == name and r["runs"] == n])
+                }
+                print("  random min-max", spread)
 
 
 if __name__ == "__main__":

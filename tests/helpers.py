@@ -189,8 +189,8 @@ def in_memory(speed: float, depth: float, **kw) -> StoreData:
     )
 
 
-def write(path: Path, speed: float, depth: float, **kw) -> Path:
-    """A field store written with the fields layer's writer."""
+def write(path: Path, speed: float, depth: float, attrs: dict | None = None, **kw) -> Path:
+    """A field store written with the fields layer's writer (``attrs`` added to its own)."""
     a = synthetic(speed, depth, **kw)
     grid = a["density"].shape[1:]
     attrs = {
@@ -204,6 +204,7 @@ def write(path: Path, speed: float, depth: float, **kw) -> Path:
         "seed": 0,
         "dozerlab_version": "test",
         "config": json.dumps({}),
+        **(attrs or {}),
     }
     coords = {k: (np.arange(n) + 0.5) * 0.1 for k, n in zip("xyz", grid, strict=False)}
     series = {

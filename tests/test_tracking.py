@@ -223,6 +223,7 @@ def test_run_and_registry_names_have_one_style():
         "validate",
         "reduce",
         "compare",
+        "adaptive",
     }
 
 

@@ -17,7 +17,7 @@ end it FINISHED / FAILED (:func:`end_parent_run`, ``dozerlab mlflow-end``) and a
 artifacts (the report, Snakemake's log) that this invocation wrote.
 
 Every run carries a ``role`` tag (``parent``, ``bed``, ``simulate``, ``train``, ``validate``,
-``reduce``, ``compare``; :data:`ROLES`) beside its ``rule``, and a name in one style,
+``reduce``, ``compare``, ``adaptive``; :data:`ROLES`) beside its ``rule``, and a name in one style,
 ``<role>/<what>[/<point>]`` (:func:`run_name`): ``simulate/hill/speed~1_depth~0.04``,
 ``train/force/unet``, ``validate/evolution/ridge``, ``reduce/ridge/hill/speed~1.25_depth~0.06``,
 ``compare/ridge``, the parent ``sweep/<config file>``. A trained model is registered in the
@@ -74,6 +74,8 @@ ROLES = {
     "reduce": "reduce",
     "reduce_training_points": "reduce",
     "compare_reduced": "compare",
+    "adaptive_record": "adaptive",
+    "adaptive_curve": "adaptive",
 }
 PARENT_ROLE = "parent"
 

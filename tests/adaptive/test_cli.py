@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from dozerlab import sweep as P
-from dozerlab.adaptive.curve import read_curve
+from dozerlab.adaptive.curve import LOOP_COLUMNS, read_curve
 from dozerlab.adaptive.design import read_points, round_zero
 from dozerlab.cli import main
 from dozerlab.config import load_config, read_yaml
@@ -141,7 +141,7 @@ def test_a_round_without_the_earlier_runs_is_refused(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_the_record_and_the_learning_curve(tmp_path):
+def test_the_record_and_the_learning_curve(tmp_path, capsys):
     cfg = config()
     results, r0, r1 = round_files(tmp_path, cfg)
     loaded = load_config(json.loads(cfg))
@@ -160,15 +160,25 @@ def test_the_record_and_the_learning_curve(tmp_path):
     ):
         if not P.field_path(results, p).exists():
             write(P.field_path(results, p), p.speed, p.depth, steps=40)
+    # the held-out points' replay loops (other fields than NDEM's) and twins
+    held_out = [p for p in points if p.role != "train"]
+    for i, p in enumerate(held_out):
+        attrs = {"warmup_rows": 2}
+        write(P.reduced_path(results, "replay", p), p.speed, p.depth, attrs, steps=40, seed=i + 1)
+        write(P.twin_path(results, p), p.speed, p.depth, steps=40, seed=i + 7)
+    model = P.adaptive_path("adaptive_model", results, 1, "linear")
+    train = [str(P.field_path(results, s.point)) for s in read_points(r0) + read_points(r1)]
+    argv = ["train", "--model", "linear", "--train", *train, "--config", cfg, "--out", str(model)]
+    assert main(argv) == 0
     record = P.adaptive_path("adaptive_record", results, 1)
-    assert (
-        main(
-            ["adaptive-record", "--config", cfg, "--rounds", str(r0), str(r1), "--out", str(record)]
-        )
-        == 0
-    )
+    argv = ["adaptive-record", "--config", cfg, "--rounds", str(r0), str(r1)]
+    argv += ["--models", str(model), "--results", str(results), "--out", str(record)]
+    assert main(argv) == 0
     doc = json.loads(record.read_text())
     assert (doc["round"], doc["runs"], len(doc["points"]), doc["errors"]) == (1, 6, 2, {})
+    loop = doc["reduced"]["linear"]
+    assert 0 < loop["reduced_force_lp_rel_rmse"] < 1 and 0 < loop["twin_force_lp_rel_rmse"] < 1
+    assert "linear in the replay loop, low-passed force_x rel. RMSE" in capsys.readouterr().out
     out = results / P.PATHS["learning_curve"]
     plots = results / P.PATHS["learning_curve_plots"]
     argv = [
@@ -189,6 +199,13 @@ def test_the_record_and_the_learning_curve(tmp_path):
         ("random", seed, n) for n in (4, 6)
     }
     assert all(0 < r["heldout_force_rel_rmse"] < 1 for r in rows)
+    # the reduced simulation: the loops' force model of each set, beside the twins
+    assert all(r["reduced_force_model"] == "linear" for r in rows)
+    assert all(0 < r[k] < 1 for r in rows for k in LOOP_COLUMNS[:2])
+    (adaptive_6,) = [r for r in rows if (r["design"], r["runs"]) == ("adaptive", 6)]
+    assert adaptive_6["reduced_force_lp_rel_rmse"] == pytest.approx(
+        loop["reduced_force_lp_rel_rmse"], rel=1e-4
+    )
     assert sorted(p.name for p in plots.iterdir() if p.suffix == ".png") == [
         "learning_curve.png",
         "rounds_map.png",

@@ -76,6 +76,9 @@ rule adaptive_record:
         validations=lambda wc: [
             str(P.adaptive_path("adaptive_validation", RESULTS, int(wc.round), m)) for m in validated_models()
         ],
+        models=lambda wc: [str(P.adaptive_path("adaptive_model", RESULTS, int(wc.round), m)) for m in validated_models()],
+        loops=adaptive_loop_inputs(),
+        held_out=[str(P.field_path(RESULTS, p)) for p in HELD_OUT],
     output:
         P.pattern("adaptive_record"),
     log:
@@ -84,11 +87,13 @@ rule adaptive_record:
     resources:
         **cluster.job_resources(config, "validate"),
     params:
-        cfg=lambda wc: config_json("mlflow"),
+        cfg=lambda wc: config_json("seed", "sweep", "mlflow", "reduced", fields={"reduced": REDUCED_CURVE_FIELDS}),
         validations=lambda wc, input: flag("validations", input.validations),
+        models=lambda wc, input: flag("models", input.models),
+        results=lambda wc: RESULTS,
     shell:
         "python -m dozerlab adaptive-record --config {params.cfg:q} --rounds {input.rounds:q} {params.validations}"
-        " --out {output:q} > {log:q} 2>&1"
+        " {params.models} --results {params.results:q} --out {output:q} > {log:q} 2>&1"
 
 
 rule adaptive_curve:
@@ -97,6 +102,7 @@ rule adaptive_curve:
         records=[str(P.adaptive_path("adaptive_record", RESULTS, r)) for r in ADAPTIVE_ROUNDS],
         stores=adaptive_curve_stores,
         held_out=[str(P.field_path(RESULTS, p)) for p in HELD_OUT],
+        loops=adaptive_loop_inputs(),
     output:
         csv=P.pattern("learning_curve"),
         plots=directory(P.pattern("learning_curve_plots")),
@@ -106,7 +112,7 @@ rule adaptive_curve:
     resources:
         **cluster.job_resources(config, "train"),
     params:
-        cfg=lambda wc: config_json("seed", "sweep", "learn", "mlflow"),
+        cfg=lambda wc: config_json("seed", "sweep", "learn", "mlflow", "reduced", fields={"reduced": REDUCED_CURVE_FIELDS}),
         results=lambda wc: RESULTS,
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab adaptive-curve --config {params.cfg:q} --rounds {input.rounds:q}"

@@ -362,6 +362,8 @@ def print_summary():
 # An adaptive sweep's config and input functions (the rules are in adaptive.smk).
 ADAPTIVE = config["sweep"]["adaptive"]
 ADAPTIVE_ROUNDS = list(range(ADAPTIVE["rounds"] + 1))
+# What the curve and the records read of the reduced section: which loops, their force model kind, twins.
+REDUCED_CURVE_FIELDS = ["dynamics_models", "force_model", "twin"]
 if ADAPTIVE["enabled"] and not HELD_OUT:
     # the rounds' errors and the learning curve are measured on them
     raise runtime.ConfigError(
@@ -400,6 +402,14 @@ def adaptive_curve_stores(wildcards):
 
     rounds = [adaptive_round_points(r) for r in ADAPTIVE_ROUNDS]
     return [str(P.field_path(RESULTS, p)) for p in design_points(config, rounds)]
+
+
+def adaptive_loop_inputs():
+    """The replay runs (and twins) of the held-out points whose loops the learning curve and the
+    rounds' records measure the reduced simulation on (dozerlab.adaptive.jobs.loop_inputs)."""
+    from dozerlab.adaptive.jobs import loop_inputs
+
+    return [str(p) for p in loop_inputs(config, RESULTS)] if ADAPTIVE["enabled"] else []
 
 
 def adaptive_report_inputs():

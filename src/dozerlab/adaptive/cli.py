@@ -36,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "python -m dozerlab adaptive-record --config config/adaptive.yaml \\\n"
         "      --rounds results/adaptive/round~0/points.csv \\\n"
         "      --validations results/adaptive/round~0/validation/linear.json \\\n"
+        "      --models results/adaptive/round~0/models/linear --results results \\\n"
         "      --out results/adaptive/round~0/record.json",
     )
     add_config(p)
@@ -47,6 +48,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         nargs="*",
         default=[],
         help="validation JSONs of the models trained on rounds 0 … r",
+    )
+    p.add_argument(
+        "--models",
+        nargs="*",
+        default=[],
+        help="the round's model directories: their reduced-simulation figures (with --results)",
+    )
+    p.add_argument(
+        "--results",
+        help="the results folder holding the held-out points' runs, replay loops and twins",
     )
     p.add_argument("--out", required=True, help="record JSON to write")
     add_threads(p)
@@ -85,11 +96,18 @@ def _record(args: argparse.Namespace) -> int:
     config = configure(args)
     from dozerlab.adaptive.jobs import record_job
 
-    rec = record_job(config, args.rounds, args.validations, args.out)
+    rec = record_job(
+        config, args.rounds, args.validations, args.out, models=args.models, results=args.results
+    )
     errors = ", ".join(f"{m} {100 * e:.1f} %" for m, e in rec["errors"].items())
     print(
         f"round {rec['round']}: {rec['runs']} NDEM training runs; held-out force_x rel. RMSE {errors or '-'}"
     )
+    for m, fig in rec.get("reduced", {}).items():
+        print(
+            f"round {rec['round']}: {m} in the replay loop, low-passed force_x rel. RMSE "
+            f"{100 * fig['reduced_force_lp_rel_rmse']:.1f} % (twin {100 * fig['twin_force_lp_rel_rmse']:.1f} %)"
+        )
     return 0
 
 

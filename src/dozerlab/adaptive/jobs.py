@@ -13,9 +13,13 @@ from dozerlab import tracking
 from dozerlab.adaptive import design, plots
 from dozerlab.adaptive.curve import COLUMNS as CURVE_COLUMNS
 from dozerlab.adaptive.curve import (
+    LOOP_COLUMNS,
     Design,
+    HeldOutLoop,
     cumulative,
     curve_rows,
+    held_out_loop,
+    loop_figures,
     mean_by_size,
     random_designs,
     write_curve,
@@ -30,7 +34,15 @@ from dozerlab.runtime import (
     json_with,
     marked_folder,
 )
-from dozerlab.sweep import SweepPoint, by_role, field_path, parse_point, sweep_points
+from dozerlab.sweep import (
+    SweepPoint,
+    by_role,
+    field_path,
+    parse_point,
+    reduced_path,
+    sweep_points,
+    twin_path,
+)
 
 #: A round's points.csv.
 POINTS_CSV = OutputKind(
@@ -105,10 +117,17 @@ def record_job(
     rounds: Sequence[str | Path],
     validations: Sequence[str | Path],
     out: str | Path,
+    *,
+    models: Sequence[str | Path] = (),
+    results: str | Path | None = None,
 ) -> dict[str, Any]:
     """Record the last of ``rounds`` (``points.csv`` of rounds 0 … r): JSON at ``out`` with its
     points, the NDEM training runs so far and the held-out errors of the models trained on them
-    (``validations``: their validation JSONs), and one MLflow run ``adaptive/round~r``."""
+    (``validations``: their validation JSONs), and one MLflow run ``adaptive/round~r``.
+
+    With ``models`` (the round's model directories) and ``results``, and the learning curve's
+    reduced figures on (:func:`loop_curve`), ``reduced`` holds each model's reduced-simulation
+    figures (:func:`~dozerlab.adaptive.curve.loop_figures`) on the held-out replay loops."""
     out = Path(out)
     with job_outputs(("--out", out, RECORD_JSON)):
         all_rows = read_rounds(rounds)
@@ -117,6 +136,14 @@ def record_job(
         for v in validations:
             doc = read_json(v, "a validation JSON")
             errors[str(doc["model"])] = float(doc["overall"]["force_x"]["rel_rmse"])
+        reduced: dict[str, dict[str, float]] = {}
+        if models and results is not None and loop_curve(config):
+            from dozerlab.learn.pyfunc import FORMAT
+
+            loops = held_out_loops(config, results)
+            for m in models:
+                module, meta = FORMAT.load(m)
+                reduced[str(meta.get("kind") or Path(m).name)] = loop_figures(module, loops)
         picked = all_rows[r]
         points = [
             {"scenario": s.point.scenario, "speed": s.point.speed, "depth": s.point.depth}
@@ -125,6 +152,8 @@ def record_job(
         ]
         runs = sum(len(x) for x in all_rows)
         record = {"round": r, "runs": runs, "points": points, "errors": errors}
+        if reduced:
+            record["reduced"] = reduced
         params = {
             "round": r,
             "points": ";".join(f"{s.point.scenario}/{s.point.name}" for s in picked),
@@ -142,6 +171,12 @@ def record_job(
                 scores = [s.score for s in picked if np.isfinite(s.score)]
                 metrics = {"runs": float(runs), "points": float(len(points))}
                 metrics |= {f"heldout_force_rel_rmse_{m}": e for m, e in errors.items()}
+                metrics |= {
+                    f"{k}_{m}": v
+                    for m, fig in reduced.items()
+                    for k, v in fig.items()
+                    if np.isfinite(v)
+                }
                 if scores:
                     metrics |= {"score_max": max(scores), "score_min": min(scores)}
                 run.log_metrics(metrics)
@@ -183,8 +218,10 @@ def curve_job(
                 plots.rounds_map(config, rows_by_round, tmp / "rounds_map.png")
             if run is not None:
                 for name in ("adaptive", "grid", "random"):
-                    for n, e in mean_by_size(rows, name).items():
-                        run.log_metrics({f"{name}_heldout_force_rel_rmse": e}, step=n)
+                    for column in ("heldout_force_rel_rmse", *LOOP_COLUMNS):
+                        for n, e in mean_by_size(rows, name, column).items():
+                            if np.isfinite(e):
+                                run.log_metrics({f"{name}_{column}": e}, step=n)
                 run.log_artifact(out)
                 run.log_artifacts(pdir, artifact_path="plots")
     return rows
@@ -231,4 +268,48 @@ def learning_curve(
         g: [load_store(field_path(results, p)) for p in by_role(every, g)]
         for g in ("interpolation", "extrapolation")
     }
-    return curve_rows(designs, stores, held, config, config["sweep"]["adaptive"]["curve_model"])
+    model = config["sweep"]["adaptive"]["curve_model"]
+    if not loop_curve(config):
+        return curve_rows(designs, stores, held, config, model)
+    loops = held_out_loops(config, results)
+    return curve_rows(designs, stores, held, config, model, loops, config["reduced"]["force_model"])
+
+
+def loop_curve(config: Mapping[str, Any]) -> bool:
+    """Whether the learning curve measures the reduced simulation too: with
+    ``sweep.adaptive.compare`` (the grid's runs and its force model, which the replay runs of
+    the held-out points ask for, are made anyway) and ``replay`` among
+    ``reduced.dynamics_models``."""
+    return (
+        bool(config["sweep"]["adaptive"]["compare"])
+        and "replay" in (config["reduced"]["dynamics_models"])
+    )
+
+
+def loop_points(config: Mapping[str, Any]) -> list[SweepPoint]:
+    """The held-out points whose replay loops the curve reads: the curve's own groups."""
+    every = sweep_points(config)
+    return [p for g in ("interpolation", "extrapolation") for p in by_role(every, g)]
+
+
+def loop_inputs(config: Mapping[str, Any], results: str | Path) -> list[Path]:
+    """What the curve's reduced figures read (none when off, :func:`loop_curve`): the replay
+    runs' stores of :func:`loop_points` and, with ``reduced.twin.enabled``, their twins'."""
+    if not loop_curve(config):
+        return []
+    twins = bool(config["reduced"]["twin"]["enabled"])
+    out = [reduced_path(results, "replay", p) for p in loop_points(config)]
+    return out + ([twin_path(results, p) for p in loop_points(config)] if twins else [])
+
+
+def held_out_loops(config: Mapping[str, Any], results: str | Path) -> list[HeldOutLoop]:
+    """The replay loops of :func:`loop_points`, with their NDEM runs and twins, from ``results``."""
+    twins = bool(config["reduced"]["twin"]["enabled"])
+    return [
+        held_out_loop(
+            reduced_path(results, "replay", p),
+            field_path(results, p),
+            twin_path(results, p) if twins else None,
+        )
+        for p in loop_points(config)
+    ]

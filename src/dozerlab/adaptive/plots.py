@@ -30,23 +30,45 @@ def learning_curve(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
 
 def learning_curve_figure(rows: Sequence[Mapping[str, Any]]) -> Any:
     """Held-out pushing-force error (%) against NDEM training runs: the adaptive design, the
-    grid, the random designs' mean (and each seed, faint)."""
+    grid, the random designs' mean (and each seed, faint); with the reduced simulation's figures
+    in the rows, a second panel: its low-passed pushing-force error on the held-out points'
+    replay loops, and the twins' (NDEM's own reproducibility) as a line."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
-    fig = Figure(figsize=(5.5, 3.8))
-    ax = fig.subplots()
-    for r in rows:
-        if r["design"] == "random":
-            ax.plot(r["runs"], 100 * r["heldout_force_rel_rmse"], ".", color="C1", alpha=0.35)
-    for name, (color, style) in _STYLE.items():
-        curve = mean_by_size(rows, name)
-        if curve:
-            label = "random (mean of seeds)" if name == "random" else name
-            ax.plot(list(curve), [100 * e for e in curve.values()], style, color=color, label=label)
-    ax.set_xlabel("NDEM training runs")
-    ax.set_ylabel("held-out force_x rel. RMSE (%)")
-    ax.grid(alpha=0.3)
-    ax.legend()
+    loop = any(np.isfinite(r["reduced_force_lp_rel_rmse"]) for r in rows)
+    panels = [("heldout_force_rel_rmse", "force model", "held-out force_x rel. RMSE (%)")]
+    if loop:
+        panels.append(
+            (
+                "reduced_force_lp_rel_rmse",
+                "reduced simulation (replay loop)",
+                "low-passed force_x rel. RMSE (%)",
+            )
+        )
+    fig = Figure(figsize=(5.5 * len(panels), 3.8))
+    axes = np.atleast_1d(fig.subplots(1, len(panels)))
+    for ax, (column, title, label) in zip(axes, panels, strict=True):
+        for r in rows:
+            if r["design"] == "random":
+                ax.plot(r["runs"], 100 * r[column], ".", color="C1", alpha=0.35)
+        for name, (color, style) in _STYLE.items():
+            curve = mean_by_size(rows, name, column)
+            if curve:
+                text = "random (mean of seeds)" if name == "random" else name
+                ax.plot(
+                    list(curve), [100 * e for e in curve.values()], style, color=color, label=text
+                )
+        if column == "reduced_force_lp_rel_rmse":
+            twin = [r["twin_force_lp_rel_rmse"] for r in rows]
+            if np.isfinite(twin).any():
+                ax.axhline(100 * float(np.nanmean(twin)), color="0.5", ls=":", label="twin NDEM")
+        ax.set_title(title)
+        ax.set_xlabel("NDEM training runs")
+        ax.set_ylabel(label)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3)
+        ax.legend()
     fig.tight_layout()
     return fig
 

@@ -122,6 +122,14 @@ def relative_rmse(pred: np.ndarray, true: np.ndarray) -> float:
     return err / rms if rms > 0 else float("nan")
 
 
+def force_lp_rel_rmse(force: np.ndarray, ndem: np.ndarray, row_dt: float, rows: slice) -> float:
+    """``force_lp_rel_rmse``: the relative RMSE over ``rows`` of the pushing force (column 0 of
+    the (T, 3) N rows ``force``) against NDEM's (``ndem``), both low-passed over
+    :data:`FORCE_WINDOW` (rows ``row_dt`` s apart) first."""
+    lp, lp_ndem = (low_pass(f[:, 0], row_dt, FORCE_WINDOW) for f in (force, ndem))
+    return relative_rmse(lp[rows], lp_ndem[rows])
+
+
 def field_errors(
     v: np.ndarray, rho: np.ndarray, v_true: np.ndarray, rho_true: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +348,6 @@ def against_ndem(
     force = store["force"].values.astype(np.float64)
     velocity, density = store["velocity"].values, store["density"].values
     ev, er = field_errors(velocity, density, ref.velocity, ref.density)
-    lp, lp_ndem = (low_pass(f[:, 0], ref.row_dt, FORCE_WINDOW) for f in (force, ref.force))
     mean_ndem = float(ref.force[rows, 0].mean())
     moved_r = ref.moved_radii * bed.radii
     moved = (np.linalg.norm(ref.end.positions - bed.positions, axis=1) > moved_r) | (
@@ -354,7 +361,7 @@ def against_ndem(
         "force_rel_rmse": relative_rmse(
             np.linalg.norm(force[rows], axis=1), np.linalg.norm(ref.force[rows], axis=1)
         ),
-        "force_lp_rel_rmse": relative_rmse(lp[rows], lp_ndem[rows]),
+        "force_lp_rel_rmse": force_lp_rel_rmse(force, ref.force, ref.row_dt, rows),
         "force_mean_rel_err": (
             abs(float(force[rows, 0].mean()) - mean_ndem) / abs(mean_ndem)
             if mean_ndem != 0

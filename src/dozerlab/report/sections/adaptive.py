@@ -49,7 +49,37 @@ def verdict(ctx: Context) -> str | None:
         text += f"; the grid's {g_n} runs reach {100 * g_err:.1f} % ({'reached' if reached else 'not reached'} within 5 %)"
     if rnd is not None and not math.isnan(rnd):
         text += f"; random designs of {n} runs {100 * rnd:.1f} % on average"
+    loop = mean_by_size(rows, "adaptive", "reduced_force_lp_rel_rmse").get(n, math.nan)
+    if not math.isnan(loop):
+        twin = mean_by_size(rows, "adaptive", "twin_force_lp_rel_rmse").get(n, math.nan)
+        text += f". In the replay loop the reduced simulation's low-passed force_x error is {100 * loop:.1f} %"
+        g_loop = list(mean_by_size(rows, "grid", "reduced_force_lp_rel_rmse").values())
+        if g_loop:
+            text += f" (the grid's {100 * g_loop[-1]:.1f} %"
+            text += f", the twins' {100 * twin:.1f} %)" if not math.isnan(twin) else ")"
     return text + "."
+
+
+def _curve_table(rows: list[dict[str, Any]]) -> str:
+    """Each design's means per number of runs: the force model's held-out error, the reduced
+    simulation's and its skill."""
+    from dozerlab.adaptive.curve import mean_by_size
+
+    columns = [
+        html.Column("design", text=True),
+        html.Column("NDEM training runs"),
+        html.Column("held-out force_x rel. RMSE", "%"),
+        html.Column("reduced: low-passed force_x rel. RMSE", "%"),
+        html.Column("reduced: skill (over the twin)"),
+    ]
+    table = []
+    for name in ("adaptive", "grid", "random"):
+        force = mean_by_size(rows, name)
+        loop = mean_by_size(rows, name, "reduced_force_lp_rel_rmse")
+        skill = mean_by_size(rows, name, "reduced_force_lp_rel_rmse_skill")
+        for n, e in force.items():
+            table.append([name, n, round(100 * e, 1), round(100 * loop[n], 1), skill[n]])
+    return html.table(columns, table)
 
 
 def render(ctx: Context) -> str | None:
@@ -96,7 +126,15 @@ def render(ctx: Context) -> str | None:
         parts.append(
             html.figure(
                 fig,
-                "Held-out force_x rel. RMSE of the curve's force model against NDEM training runs: the adaptive design after each round, the grid, random designs of the same sizes drawn from the candidates (mean, and each seed).",
+                "Held-out force_x rel. RMSE of the curve's force model against NDEM training runs: the adaptive design after each round, the grid, random designs of the same sizes drawn from the candidates (mean, and each seed). "
+                "Where the held-out points' replay runs exist, right: the reduced simulation's pushing force, low-passed over 0.1 s, when the loop's force model (reduced.force_model) is the one fitted to each training set, against NDEM's on the held-out points; the dotted line is the twins' (NDEM's own reproducibility).",
+            )
+        )
+        parts.append(_curve_table(curve))
+        parts.append(
+            html.paragraph(
+                "Means over the random designs' seeds; the reduced simulation's figures are means over the held-out points, as compare-reduced reports them (skill: the error over the twin's, below 1 beats NDEM's reproducibility); empty without the replay runs.",
+                "caption",
             )
         )
     else:
