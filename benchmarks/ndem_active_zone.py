@@ -29,6 +29,7 @@ the times depend on the machine and its load.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import json
 import tempfile
@@ -149,6 +150,11 @@ def main() -> None:
         "--designs", nargs="+", default=["zone"], help="NAME[:KEY=VALUE,...] (solver settings)"
     )
     parser.add_argument("--json", help="also write the figures here (after every point)")
+    parser.add_argument(
+        "--keep",
+        help="write each run's field store and final state under this new folder instead of a "
+        "temporary one (an interrupted benchmark's finished runs can then still be compared)",
+    )
     args = parser.parse_args()
 
     from dozerlab.config import load_config
@@ -188,7 +194,12 @@ def main() -> None:
         label = f"{point.scenario} {point.speed}/{point.depth}"
         twins: dict[int, dict[str, Any]] = {}
         runs: dict[str, dict[str, Any]] = {}
-        with tempfile.TemporaryDirectory() as tmp:
+        keep = (
+            Path(args.keep) / f"{point.scenario}_{point.speed}_{point.depth}" if args.keep else None
+        )
+        if keep:
+            keep.mkdir(parents=True)
+        with contextlib.nullcontext(str(keep)) if keep else tempfile.TemporaryDirectory() as tmp:
             full = run(bed, traj, full_cfg, Path(tmp), "full")
             print(f"  {label}: full {full['loop_s'] / sim_s:.2f} s/sim s", flush=True)
             # Designs and twins alternate so that the load of a shared machine reaches both.
