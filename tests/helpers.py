@@ -161,7 +161,7 @@ def synthetic(
     velocity = (0.8 * vb[:, None, None, None, :] * (fill[..., None] > 0)).astype(np.float32)
     velocity += rng.normal(0, 0.01, velocity.shape).astype(np.float32)
     mass = density.sum(axis=(1, 2, 3)) * 1e-3
-    fx = mass * (1 + vb[:, 0])
+    fx = -mass * (1 + vb[:, 0])  # the material pushes the blade back (−x)
     force = np.stack([fx, 0.1 * fx, 0.5 * mass], axis=1)
     torque = np.stack([0.2 * mass, -0.3 * fx, 0.05 * fx], axis=1)
     return {

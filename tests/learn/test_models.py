@@ -4,7 +4,13 @@ import torch
 from torch.nn import functional as F
 
 from dozerlab.learn.metrics import component_metrics
-from dozerlab.learn.models import Conv3d, ForceModel, n_channels, resize_trilinear
+from dozerlab.learn.models import (
+    Conv3d,
+    ForceModel,
+    n_channels,
+    pushing_gate,
+    resize_trilinear,
+)
 from dozerlab.learn.pyfunc import predict_arrays
 from dozerlab.learn.train import TrainingDiverged, train_model
 from dozerlab.learn.validate import predict_store
@@ -145,7 +151,7 @@ def test_raw_features_are_the_documented_channels(history):
     v = torch.randn(b, history, *grid, 3, generator=gen)
     rho = torch.rand(b, history, *grid, generator=gen)
     vb = torch.randn(b, history, 3, generator=gen)
-    x, c = ForceModel.raw_features(v, rho, vb)
+    x, c = ForceModel("linear", grid, history).raw_features(v, rho, vb)
     assert x.shape == (b, n_channels(history), *grid)
     torch.testing.assert_close(c, vb.reshape(b, -1), rtol=0, atol=0)
     for h in range(history):
@@ -160,3 +166,50 @@ def test_raw_features_are_the_documented_channels(history):
         mom = rho[:, h, ..., None] * v[:, h] - rho[:, h - 1, ..., None] * v[:, h - 1]
         for a in range(3):
             torch.testing.assert_close(x[:, base + 1 + a], mom[..., a], rtol=0, atol=0)
+
+
+def test_pushing_gate_is_the_horizontal_share_times_the_density_at_the_face():
+    rho = torch.zeros(3, 2, 4, 3, 2)
+    rho[:, -1, 0] = 1200.0  # the face bins at the newest step
+    rho[:, -1, 1:] = 500.0  # further ahead: not the face
+    vb = torch.zeros(3, 2, 3)
+    vb[0, -1] = torch.tensor([1.0, 0.0, 0.0])  # pushing straight ahead
+    vb[1, -1] = torch.tensor([0.0, 0.0, 1.0])  # lifted straight up
+    vb[2, -1] = torch.tensor([0.6, 0.0, -0.8])  # down a slope
+    torch.testing.assert_close(pushing_gate(rho, vb), torch.tensor([1200.0, 0.0, 720.0]))
+    assert pushing_gate(rho, torch.zeros(3, 2, 3)).eq(0).all()  # at rest
+
+
+def test_contact_model_never_pulls_the_blade(train_stores):
+    s = train_stores[0]
+    arrays = {"velocity": s.velocity, "density": s.density, "blade_velocity": s.blade_velocity}
+    for contact in (True, False):
+        model = ForceModel("mlp", s.grid, contact=contact).eval()
+        model.y_mean[0] = 1e6  # an untrained model that would predict a pull
+        assert model.spec()["contact"] is contact
+        pulls = predict_arrays(model, arrays)[:, 0] > 0
+        assert pulls.all() if not contact else not pulls.any()
+
+
+def test_linear_contact_weights_follow_the_gate(train_stores, config):
+    """A blade lifted straight up with the same fields pushes nothing: with the contact inputs
+    the linear model learns it, without them its one set of weights cannot."""
+    lifted = []
+    for s in train_stores:
+        up = in_memory(float(s.point["speed"]), float(s.point["depth"]), steps=60, seed=7)
+        up.blade_velocity[:, :] = [0.0, 0.0, float(s.point["speed"])]
+        up.target[:, :] = 0.0
+        up.point = {**up.point, "scenario": "lifted"}
+        lifted.append(up)
+    errors = {}
+    for contact in (True, False):
+        config["learn"]["contact"] = contact
+        model = train_model("linear", [*train_stores, *lifted], config, progress=False).model
+        _, pred, true = predict_store(model, in_memory(1.0, 0.1, seed=99))
+        _, pred_up, _ = predict_store(model, lifted[0])
+        errors[contact] = (
+            component_metrics(pred, true)["force_x"]["rel_rmse"],
+            float(np.abs(pred_up[:, 0]).max() / np.abs(true[:, 0]).mean()),
+        )
+    assert errors[True][0] < 0.1 and errors[True][1] < 0.05, errors
+    assert errors[False][1] > 2 * errors[True][1], errors

@@ -50,6 +50,23 @@ def test_saved_directory_loads_back_the_same_model_without_mlflow(saved):
     assert all(torch.equal(state[k], loaded[k]) for k in state)
 
 
+def test_a_model_saved_before_the_contact_inputs_loads_without_them(train_stores, tmp_path):
+    """Metadata without ``contact`` (models saved before it) rebuilds a model without the
+    pushing gate, whose state dict then fits."""
+    cfg = load_config({"learn": {"contact": False}, "mlflow": {"enabled": False}})
+    model = train_model("linear", train_stores, cfg, progress=False).model.eval()
+    pyfunc.save(model, {}, tmp_path / "old", _inputs(train_stores[0]))
+    meta_path = tmp_path / "old" / "artifacts" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    del meta["contact"]
+    back = pyfunc.build(meta, tmp_path / "old" / "artifacts" / "weights.pt")
+    assert not back.contact and back.cond_mean.shape == (3 * back.history,)
+    arrays = _inputs(train_stores[1])
+    np.testing.assert_array_equal(
+        pyfunc.predict_arrays(back, arrays), pyfunc.predict_arrays(model, arrays)
+    )
+
+
 def test_mlflow_loads_the_directory_and_predicts_like_the_model(saved):
     model, path = saved
     arrays = _inputs(in_memory(1.0, 0.1, steps=30, seed=7))

@@ -26,6 +26,7 @@ from dozerlab.reduce.compare import (
     sliced_emd,
     smoothed_surface,
     targets_met,
+    transfer_gap,
 )
 from dozerlab.reduce.projection import Bodies
 from dozerlab.runtime import DozerlabError
@@ -275,3 +276,19 @@ def test_low_pass_is_a_moving_mean():
     assert lp.shape == f.shape
     np.testing.assert_allclose(lp[10:-10, 0], 2.0, atol=1e-9)  # whole periods average out
     np.testing.assert_allclose(lp[10:-10, 1], t[10:-10] - 0.005, atol=1e-9)
+
+
+def test_transfer_gap_sets_unseen_terrain_against_the_seen_shapes():
+    entries = [
+        {"role": "interpolation", "surface_accuracy_skill": 0.78},
+        {"role": "extrapolation", "surface_accuracy_skill": 0.74},
+        {"role": "extrapolation", "surface_accuracy_skill": None},  # no twin: left out
+        {"role": "transfer", "surface_accuracy_skill": 0.54},
+    ]
+    gap = transfer_gap(entries, 0.1)
+    assert gap is not None
+    assert gap["surface_skill_seen"] == pytest.approx(0.76)
+    assert gap["gap"] == pytest.approx(-0.22) and gap["met"] is False
+    entries[-1]["surface_accuracy_skill"] = 0.70
+    assert transfer_gap(entries, 0.1)["met"] is True  # type: ignore[index]
+    assert transfer_gap(entries[:3], 0.1) is None  # no unseen terrain

@@ -11,6 +11,16 @@ their one-step changes cut the held-out force error from 27 % to 19 % (BENCHMARK
 are normalised with statistics of the training points and passed with the normalised blade
 velocity (the conditioning input) to a backbone that predicts the normalised targets. The
 normalisation lives in buffers of the module, so a saved state dict is the whole model.
+
+With ``contact`` (``learn.contact``) a model knows two things about the blade's contact that the
+fields in its frame do not say. The conditioning gains the **pushing gate**
+(:func:`pushing_gate`): the share of the blade's motion that is horizontal times the density
+against its face; the linear model fits its terms once plain and once times the gate, so a blade
+moving straight up or down, or with nothing against its face, gets its own weights (no training
+run had such rows: the unseen trench's path has them, BENCHMARKS.md "Unseen terrain"). And the
+pushing force is **one-sided**: grains push on the blade's faces, they cannot pull it (no
+cohesion), so the predicted ``force_x`` is clipped at 0 (every training row of the default sweep
+has ``force_x`` ≤ 0 N).
 """
 
 from __future__ import annotations
@@ -28,6 +38,8 @@ CHANNELS_PER_STEP = 10
 #: Channels of the change since the step before, for every step but the oldest: Δρ (1), Δ(ρv) (3).
 CHANNELS_PER_CHANGE = 4
 OUTPUTS = 6
+#: Conditioning entries after the blade velocities of a model with contact inputs: the pushing gate.
+CONTACT_ENTRIES = 1
 
 
 def n_channels(history: int) -> int:
@@ -40,17 +52,39 @@ def n_channels(history: int) -> int:
 TARGET_PARITY = (1.0, -1.0, 1.0, -1.0, 1.0, -1.0)
 
 
-def channel_parity(history: int) -> tuple[list[float], list[float]]:
+def channel_parity(history: int, contact: bool = False) -> tuple[list[float], list[float]]:
     """Parity under the mirror y → −y of each input channel and each conditioning entry of a
-    model with ``history`` steps: the y components of velocities and momenta are odd."""
+    model with ``history`` steps (and the pushing gate, even, with ``contact``): the y
+    components of velocities and momenta are odd."""
     step = [1.0, -1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, -1.0, 1.0]  # v−v_b, ρ, ρ(v−v_b), ρv
     change = [1.0, 1.0, -1.0, 1.0]  # Δρ, Δ(ρv)
-    return step * history + change * (history - 1), [1.0, -1.0, 1.0] * history
+    cond = [1.0, -1.0, 1.0] * history + [1.0] * (CONTACT_ENTRIES if contact else 0)
+    return step * history + change * (history - 1), cond
+
+
+def pushing_gate(density: torch.Tensor, blade_velocity: torch.Tensor) -> torch.Tensor:
+    """(B,) the blade's horizontal share of its motion, max(v_bx, 0) / |v_b| (0 at rest), times
+    the mean density (kg/m³) of the bins against its face (the first bins along x), at the
+    newest step of density (B, H, X, Y, Z) and blade_velocity (B, H, 3).
+
+    The resistance to a blade comes from pushing into the material ahead: it is small when the
+    blade moves straight up or down (the trench's path, ``force_x`` −0.5 to 0 kN there) or when
+    nothing lies against its face.
+    """
+    vb = blade_velocity[:, -1]
+    speed = torch.linalg.vector_norm(vb, dim=1)
+    share = torch.where(speed > 0, vb[:, 0].clamp(min=0.0) / speed.clamp(min=1e-12), 0.0)
+    return share * density[:, -1, 0].mean(dim=(1, 2))
 
 
 class LinearHead(nn.Module):
     """Ridge regression on per-(x, z)-column features, equivariant under the mirror y → −y
     (fitted in closed form).
+
+    The conditioning is 3 entries per history step, then the pushing gate g when the model has
+    contact inputs (``cond`` = 3H + 1): then the even targets are fitted on the even features
+    f and on g·f and g, a linear model whose weights depend on g (g is even, the odd fit is
+    unchanged).
 
     The force on a blade as wide as the sampling volume is a sum over the material across
     it, so each channel enters through its sum over y and its first moment Σ y·x (the
@@ -68,8 +102,9 @@ class LinearHead(nn.Module):
 
     def __init__(self, in_channels: int, cond: int, grid: tuple[int, int, int]) -> None:
         super().__init__()
-        history = cond // 3
-        chan, cond_par = channel_parity(history)
+        history, extra = divmod(cond, 3)
+        self.contact = extra == CONTACT_ENTRIES
+        chan, cond_par = channel_parity(history, self.contact)
         if len(chan) != in_channels:
             raise ValueError(
                 f"linear: {in_channels} channels do not match a history of {history} steps"
@@ -81,7 +116,8 @@ class LinearHead(nn.Module):
         self.register_buffer("cond_odd", torch.tensor(cond_par) < 0, persistent=False)
         self.register_buffer("target_odd", torch.tensor(TARGET_PARITY) < 0, persistent=False)
         columns, n_odd = in_channels * grid[0] * grid[2], int(self.cond_odd.sum())
-        self.even = nn.Linear(columns + cond - n_odd, 3)
+        even = columns + cond - n_odd
+        self.even = nn.Linear(2 * even - 1 if self.contact else even, 3)
         self.odd = nn.Linear(columns + n_odd, 3)
 
     def designs(self, x: torch.Tensor, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -91,9 +127,14 @@ class LinearHead(nn.Module):
         odd = self.chan_odd[None, :, None, None]
         even_f = torch.where(odd, moment, total).flatten(1)
         odd_f = torch.where(odd, total, moment).flatten(1)
-        return torch.cat([even_f, c[:, ~self.cond_odd]], dim=1), torch.cat(
-            [odd_f, c[:, self.cond_odd]], dim=1
+        odd_design = torch.cat([odd_f, c[:, self.cond_odd]], dim=1)
+        if not self.contact:
+            return torch.cat([even_f, c[:, ~self.cond_odd]], dim=1), odd_design
+        plain = torch.cat(
+            [even_f, c[:, :-CONTACT_ENTRIES][:, ~self.cond_odd[:-CONTACT_ENTRIES]]], dim=1
         )
+        gate = c[:, -1:]
+        return torch.cat([plain, gate * plain, gate], dim=1), odd_design
 
     def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         even, odd = self.designs(x, c)
@@ -297,7 +338,8 @@ class ForceModel(nn.Module):
     """Raw store arrays → (B, 6) force (N) and torque (N·m), normalisation included.
 
     ``forward(velocity (B, H, Nx, Ny, Nz, 3), density (B, H, Nx, Ny, Nz), blade_velocity
-    (B, H, 3))``, float32, H = ``history`` steps oldest first.
+    (B, H, 3))``, float32, H = ``history`` steps oldest first. With ``contact`` the conditioning
+    ends in the pushing gate and ``force_x`` is clipped at 0 (the module docstring).
     """
 
     chan_mean: torch.Tensor
@@ -307,13 +349,17 @@ class ForceModel(nn.Module):
     y_mean: torch.Tensor
     y_std: torch.Tensor
 
-    def __init__(self, kind: str, grid: tuple[int, int, int], history: int = 1) -> None:
+    def __init__(
+        self, kind: str, grid: tuple[int, int, int], history: int = 1, contact: bool = False
+    ) -> None:
         super().__init__()
         if kind not in BACKBONES:
             raise ValueError(f"model must be one of {list(BACKBONES)}, got {kind!r}")
         nx, ny, nz = (int(n) for n in grid)
         self.kind, self.grid, self.history = kind, (nx, ny, nz), int(history)
-        c_in, cond = n_channels(self.history), 3 * self.history
+        self.contact = bool(contact)
+        c_in = n_channels(self.history)
+        cond = 3 * self.history + (CONTACT_ENTRIES if self.contact else 0)
         self.backbone = BACKBONES[kind](c_in, cond, self.grid)
         for name, n in (("chan_mean", c_in), ("cond_mean", cond), ("y_mean", OUTPUTS)):
             self.register_buffer(name, torch.zeros(n))
@@ -322,13 +368,18 @@ class ForceModel(nn.Module):
 
     def spec(self) -> dict[str, Any]:
         """What it takes to rebuild this model before loading its state dict."""
-        return {"kind": self.kind, "grid": list(self.grid), "history": self.history}
+        return {
+            "kind": self.kind,
+            "grid": list(self.grid),
+            "history": self.history,
+            "contact": self.contact,
+        }
 
-    @staticmethod
     def raw_features(
-        velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Unnormalised channels (B, n_channels(H), X, Y, Z) and conditioning (B, 3H).
+        """Unnormalised channels (B, n_channels(H), X, Y, Z) and conditioning (B, 3H), with
+        ``contact`` (B, 3H + 1): the pushing gate last.
 
         Channels: the H steps' own channels (oldest first), then the H − 1 changes. Written in
         place into one tensor (16× faster than concatenating channel-last parts and permuting),
@@ -348,7 +399,10 @@ class ForceModel(nn.Module):
             )
             for dst, src in ((slice(0, 1), slice(3, 4)), (slice(1, 4), slice(7, 10))):
                 torch.sub(steps[:, 1:, src], steps[:, :-1, src], out=changes[:, :, dst])
-        return out, blade_velocity.reshape(b, -1)
+        cond = blade_velocity.reshape(b, -1)
+        if self.contact:
+            cond = torch.cat([cond, pushing_gate(density, blade_velocity)[:, None]], dim=1)
+        return out, cond
 
     def inputs(
         self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
@@ -369,4 +423,8 @@ class ForceModel(nn.Module):
     def forward(
         self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
     ) -> torch.Tensor:
-        return self.normalized(velocity, density, blade_velocity) * self.y_std + self.y_mean
+        out = self.normalized(velocity, density, blade_velocity) * self.y_std + self.y_mean
+        if self.contact:
+            # one-sided contact: the grains push the blade back, they cannot pull it
+            out = torch.cat([out[:, :1].clamp(max=0.0), out[:, 1:]], dim=1)
+        return out

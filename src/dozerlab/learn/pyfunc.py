@@ -69,7 +69,10 @@ MODEL_DIR = model_dir_kind("a dozerlab force model directory (written by train)"
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:
     """Rebuild a :class:`ForceModel` from its metadata and state-dict file (CPU, eval mode)."""
-    model = ForceModel(meta["kind"], tuple(meta["grid"]), meta["history"])
+    # models saved before the contact inputs have no "contact" key
+    model = ForceModel(
+        meta["kind"], tuple(meta["grid"]), meta["history"], bool(meta.get("contact", False))
+    )
     model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
     return model.eval()
 

@@ -109,7 +109,7 @@ def fit_normalization(model: ForceModel, train: Batches, chunk: int = 256) -> No
         n_bins += x.shape[0] * x[0, 0].numel()
         n_cond += x.shape[0]
 
-    chan_par, cond_par = channel_parity(model.history)
+    chan_par, cond_par = channel_parity(model.history, model.contact)
     odd = {
         key: torch.tensor(par, device=sums["y"].device) < 0
         for key, par in (("x", chan_par), ("c", cond_par), ("y", TARGET_PARITY))
@@ -190,7 +190,7 @@ def train_model(
         samples, learn["validation_fraction"], learn["validation_block"]
     )
     train, val = Batches(train_s, dev), Batches(val_s, dev)
-    model = ForceModel(kind, stores[0].grid, learn["history"]).to(dev)
+    model = ForceModel(kind, stores[0].grid, learn["history"], learn["contact"]).to(dev)
     fit_normalization(model, train)
     result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -520,4 +520,35 @@ def targets_met(
         "nothing_left": metrics["left_bed"] == 0,
         "nothing_through": metrics["body_depth_final_m"]
         <= max(THROUGH_TOLERANCE, metrics.get("body_depth_final_ndem_m") or 0.0),
+    }
+
+
+def transfer_gap(entries: Sequence[Mapping[str, Any]], target: float) -> dict[str, Any] | None:
+    """The smoothed-surface skill on unseen terrain (role ``transfer``) against the seen shapes
+    (``interpolation`` and ``extrapolation``): each the mean over its points of
+    ``surface_accuracy_skill``, ``gap`` = unseen − seen, ``met`` when |gap| ≤ ``target``
+    (``reduced.targets.transfer_skill_gap``). None without a point of either side or a skill
+    (no twins)."""
+
+    def mean_skill(roles: tuple[str, ...]) -> float | None:
+        values = [
+            float(v)
+            for e in entries
+            if e.get("role") in roles
+            and (v := e.get("surface_accuracy_skill")) is not None
+            and np.isfinite(v)
+        ]
+        return float(np.mean(values)) if values else None
+
+    seen = mean_skill(("interpolation", "extrapolation"))
+    unseen = mean_skill(("transfer",))
+    if seen is None or unseen is None:
+        return None
+    gap = unseen - seen
+    return {
+        "surface_skill_seen": seen,
+        "surface_skill_unseen": unseen,
+        "gap": gap,
+        "target": float(target),
+        "met": bool(abs(gap) <= target),
     }

@@ -224,7 +224,9 @@ def compare_job(
 
     The JSON holds ``points`` (one entry per point: its role, metrics and which targets it
     meets, ``reduced.targets``), ``overall`` (per role and ``all``: means of the errors, worst
-    overlaps, least speed-ups) and ``targets``. With ``reduced.twin.enabled`` each point's twin
+    overlaps, least speed-ups), ``targets`` and, with transfer points and twins, ``transfer``
+    (:func:`dozerlab.reduce.compare.transfer_gap`: the surface skill on unseen terrain against
+    the seen shapes'). With ``reduced.twin.enabled`` each point's twin
     NDEM run (``results/twins/…``) is measured too: the twin's figures and the skills
     (:func:`dozerlab.reduce.compare.skills`). Logged as an MLflow run with the plots.
     """
@@ -244,7 +246,7 @@ def _compare(
     from dozerlab import tracking
     from dozerlab.fields.store import open_store
     from dozerlab.reduce import plots as rp
-    from dozerlab.reduce.compare import compare_point, targets_met
+    from dozerlab.reduce.compare import compare_point, targets_met, transfer_gap
 
     held_out = [p for p in P.sweep_points(config) if p.role != "train"]
     if not held_out:
@@ -312,11 +314,17 @@ def _compare(
             "points": entries,
             "overall": {k: v for k, v in overall.items() if v},
         }
+        if (gap := transfer_gap(entries, targets["transfer_skill_gap"])) is not None:
+            summary["transfer"] = gap
         with atomic_output(out, COMPARISON_JSON) as tmp:
             tmp.write_text(json.dumps(summary, indent=1, allow_nan=True))
         if run is not None:
             for role, agg in summary["overall"].items():
                 run.log_metrics({f"{role}.{k}": v for k, v in agg.items()})
+            if gap is not None:
+                run.log_metrics(
+                    {f"transfer.{k}": float(v) for k, v in gap.items() if k != "target"}
+                )
             run.log_artifacts(plots, artifact_path="plots")
             run.log_artifact(out)
     return summary
