@@ -157,3 +157,20 @@ def test_the_verdict_is_the_best_learned_model_else_the_replay_control(tmp_path)
         ("ridge", "0.80", "–", "2 of 3"),
         ("unet", "0.85", "12.0", "3 of 4"),
     ]
+
+
+def test_a_comparison_with_unseen_terrain_shows_its_skill_beside_the_seen_shapes(tmp_path):
+    reduced_json(tmp_path, "replay")  # without unseen terrain: the first test's table
+    path = tmp_path / "reduced" / "replay.json"
+    doc = json.loads(path.read_text())
+    doc["transfer"] = {
+        "surface_skill_seen": 0.72,
+        "surface_skill_unseen": 0.54,
+        "gap": -0.18,
+        "target": 0.1,
+        "met": False,
+    }
+    path.write_text(json.dumps(doc))
+    text = reduced.render(report_context(CFG, tmp_path))
+    assert "surface skill, unseen terrain / seen" in text
+    assert table_cells(text, 0)[-1] == "0.54 / 0.72 (beyond 0.1)"

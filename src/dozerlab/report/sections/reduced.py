@@ -210,16 +210,32 @@ def _models_table(docs: dict[str, dict[str, Any]]) -> str:
         *(c for _, c in figures),
         html.Column("targets met", text=True),
     ]
+    transfer = any(d.get("transfer") for d in docs.values())
+    if transfer:
+        columns.append(html.Column("surface skill, unseen terrain / seen", text=True))
     rows = [
         [
             model,
             _force_models(doc["points"]),
             *(_mean(doc["points"], k) for k, _ in figures),
             "{} of {}".format(*_targets_count(doc["points"])),
+            *([_transfer_cell(doc.get("transfer"))] if transfer else []),
         ]
         for model, doc in docs.items()
     ]
     return html.table(columns, rows)
+
+
+def _transfer_cell(t: dict[str, Any] | None) -> str:
+    """The comparison's ``transfer`` entry: unseen-terrain skill over the seen shapes', and
+    whether the gap is within ``reduced.targets.transfer_skill_gap``."""
+    if not t:
+        return "–"
+    verdict = "within" if t["met"] else "beyond"
+    return (
+        f"{t['surface_skill_unseen']:.2f} / {t['surface_skill_seen']:.2f} "
+        f"({verdict} {t['target']:g})"
+    )
 
 
 def _caption(t: dict[str, Any], replay: bool) -> str:
