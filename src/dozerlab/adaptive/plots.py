@@ -18,7 +18,6 @@ _STYLE = {"adaptive": ("C0", "o-"), "grid": ("k", "s"), "random": ("C1", "^--")}
 def _save(fig: Any, path: Path) -> Path:
     from dozerlab.runtime import png_metadata
 
-    fig.tight_layout()
     fig.savefig(path, dpi=110, format="png", metadata=png_metadata())
     return path
 
@@ -84,7 +83,7 @@ def rounds_map_figure(config: Mapping[str, Any], rounds: Sequence[Sequence[Score
     from matplotlib.figure import Figure
 
     scenarios = list(config["sweep"]["scenarios"])
-    fig = Figure(figsize=(4.2 * len(scenarios), 3.6))
+    fig = Figure(figsize=(4.2 * len(scenarios) + 1.2, 3.6), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, len(scenarios)))
     points = sweep_points(config)
     for ax, s in zip(axes, scenarios, strict=True):
@@ -119,6 +118,18 @@ def rounds_map_figure(config: Mapping[str, Any], rounds: Sequence[Sequence[Score
         ax.set_xlabel("speed (m/s)")
         ax.set_ylabel("depth (m)")
         ax.grid(alpha=0.3)
-    axes[-1].legend(fontsize=7, loc="best")
-    fig.tight_layout()
+        ax.margins(0.12)  # points on the box's edges keep their round labels
+    # One legend for every panel: a round may pick points on one scenario only.
+    labelled: dict[str, Any] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            labelled.setdefault(label, handle)
+    names = [k for k in labelled if not k.startswith("round ")]
+    names += [f"round {r}" for r in range(len(rounds)) if f"round {r}" in labelled]
+    fig.legend(
+        [labelled[k] for k in names],
+        names,
+        fontsize=8,
+        loc="outside right center",
+    )
     return fig

@@ -70,7 +70,10 @@ def _curve_table(rows: list[dict[str, Any]]) -> str:
         html.Column("NDEM training runs"),
         html.Column("held-out force_x rel. RMSE", "%"),
         html.Column("reduced: low-passed force_x rel. RMSE", "%"),
-        html.Column("reduced: skill (over the twin)"),
+        html.Column(
+            "reduced: skill (over the twin)",
+            format=lambda v: html.fmt(v) if v is None or not math.isfinite(v) else f"{v:.2f}",
+        ),
     ]
     table = []
     for name in ("adaptive", "grid", "random"):
