@@ -64,6 +64,6 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     )
     assert lines[3].endswith(
         "ridge on 2 held-out points: smoothed-surface accuracy 72 % (twin 90 %, skill 0.80), "
-        "height accuracy 85 %, force x rel. RMSE 20 %, loop speed-up 40.0x"
+        "height accuracy 85 %, force x rel. RMSE 20 %, least loop speed-up 40.0x"
     )
     assert lines[4].endswith("targets met: surface_skill; missed: loop_speedup (1 of 2)")

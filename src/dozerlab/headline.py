@@ -39,8 +39,8 @@ REDUCED_FIGURES = {
     "twin_height_accuracy": "twin",
     "force_x_rel_rmse": "force x rel. RMSE",
     "twin_force_x_rel_rmse": "twin",
-    "loop_speedup": "loop speed-up",
-    "job_speedup": "job speed-up",
+    "loop_speedup": "least loop speed-up",
+    "job_speedup": "least job speed-up",
 }
 #: The figures that are fractions (shown in %); the skills are ratios, the speed-ups factors.
 PERCENT = tuple(k for k in REDUCED_FIGURES if not k.endswith(("_skill", "_speedup")))
