@@ -220,7 +220,8 @@ def memory_estimate(config: Mapping[str, Any]) -> dict[str, float]:
     ``sampling.every`` steps.
     """
     s, sweep = config["sampling"], config["sweep"]
-    cells = math.prod(s["bins"])
+    nx, ny, nz = s["bins"]
+    cells = nx * (ny + 2 * s["side_bins"]) * (nz + s["above_bins"])
     dt, length = config["solver"]["dt"], config["bed"]["length"]
     steps = [length / (v * dt) / s["every"] for v in sweep["speeds"]]
     runs = len(sweep["scenarios"]) * len(sweep["depths"])

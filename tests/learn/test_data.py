@@ -113,3 +113,13 @@ def test_loop_fields_pair_the_loops_velocity_and_density_with_ndems_force():
         with_loop_fields(ndem, in_memory(1.0, 0.1, seed=2, steps=80))
     with pytest.raises(DozerlabError, match="grid"):
         with_loop_fields(ndem, in_memory(1.0, 0.1, seed=2, grid=(6, 6, 4)))
+
+
+def test_stores_of_another_blade_part_are_refused(store_files):
+    a, b = (load_store(p) for p in store_files["train"][:2])
+    assert a.blade_part is None and a.part == (0, 6, 4)
+    b.blade_part = (1, 5, 4)  # the same bins, split into a blade part and side bins
+    with pytest.raises(DozerlabError, match=r"blade part at bins \[1, 5, 4\].*side_bins"):
+        check_grid([a, b])
+    with pytest.raises(DozerlabError, match="blade part"):
+        check_grid([a], a.grid, blade_part=(1, 5, 4))

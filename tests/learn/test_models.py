@@ -213,3 +213,24 @@ def test_linear_contact_weights_follow_the_gate(train_stores, config):
         )
     assert errors[True][0] < 0.1 and errors[True][1] < 0.05, errors
     assert errors[False][1] > 2 * errors[True][1], errors
+
+
+@pytest.mark.parametrize("kind", ["linear", "mlp", "cnn", "unet"])
+def test_a_model_with_a_blade_part_reads_only_those_bins(kind):
+    """Beside and above the blade part the fields do not reach the model: the backbone is
+    built on the part's grid, and changing the other bins changes nothing."""
+    torch.manual_seed(0)
+    model = ForceModel(kind, (8, 10, 6), history=2, contact=True, blade_part=(2, 8, 4)).eval()
+    assert model.spec()["blade_part"] == [2, 8, 4]
+    v, rho = torch.randn(3, 2, 8, 10, 6, 3), torch.rand(3, 2, 8, 10, 6) * 1000
+    vb = torch.randn(3, 2, 3)
+    with torch.no_grad():
+        before = model(v, rho, vb)
+        v[:, :, :, :2], rho[:, :, :, 8:], v[..., 4:, :] = 5.0, 3000.0, -2.0
+        after = model(v, rho, vb)
+        rho[:, :, 0, 4, 1] += 500.0  # a bin of the part, against the face
+        moved = model(v, rho, vb)
+    torch.testing.assert_close(before, after)
+    assert not torch.allclose(after, moved)
+    with pytest.raises(ValueError, match="blade_part"):
+        ForceModel(kind, (8, 10, 6), blade_part=(2, 11, 4))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mlflow
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from dozerlab.reduce.models import (
     ForcePredictor,
     PyfuncFieldModel,
     ReplayFieldModel,
+    RunFrame,
     load_field_model,
 )
 from dozerlab.runtime import DozerlabError
@@ -58,6 +61,18 @@ def test_the_force_model_reads_only_its_history_of_rows(ndem_run):
     assert f.shape == t.shape == (3,) and np.isfinite(f).all()
     np.testing.assert_array_equal(f, f2)
     np.testing.assert_array_equal(t, t2)
+
+
+def test_a_run_whose_blade_part_the_force_model_does_not_read_is_refused(ndem_run):
+    tmp, _ = ndem_run
+    store = load_store(tmp / "ndem.zarr")
+    forces = ForcePredictor(tmp / "linear")
+    _, ny, nz = store.grid
+    frame = RunFrame("t.csv", 10, store.grid, store.bin_size, store.row_dt, {})
+    forces.check_run(frame)  # no blade part given: the whole grid, the model's
+    forces.check_run(replace(frame, blade_part=(0, ny, nz)))
+    with pytest.raises(DozerlabError, match=r"reads bins \[0, \d+, \d+\] .*side_bins"):
+        forces.check_run(replace(frame, blade_part=(1, ny - 1, nz)))
 
 
 def test_a_pyfunc_evolution_model_predicts_as_the_model_itself(ndem_run, tmp_path):

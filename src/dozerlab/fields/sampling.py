@@ -1,8 +1,12 @@
 """Field sampling (docs/data.md): a grid of bins attached to the blade and particle–bin weights.
 
 The sampling volume is a box in the blade frame (origin at the tip, axes as the world's, the blade
-only translates): x ∈ [0, length] in front of the front face, y across the blade's width,
-z from ``below_edge`` below the lower edge up to the blade's top. It holds (Nx, Ny, Nz) bins.
+only translates): x ∈ [0, length] in front of the front face, y across the blade's width and
+``side_bins`` more bins beyond each of its ends, z from ``below_edge`` below the lower edge up
+to the blade's top and ``above_bins`` more bins over it. It holds (Nx, Ny, Nz) bins, of which
+the **blade part** — the bins across the blade's width, up to its top — is what pushes on the
+blade (the force models read only it); the bins beside and above carry the material the blade
+heaps into windrows and piles (the reduced simulation moves grains with them).
 
 Particle–bin weight (thesis algorithm 1): the fraction of the particle's axis-aligned bounding box
 inside the bin, w = d_x d_y d_z / (2r)³ with d the per-axis overlap of the intervals
@@ -102,29 +106,56 @@ class SamplingGrid:
         bins: (Nx, Ny, Nz) bin counts.
         bin_size: (3,) bin edge lengths, m.
         lower: (3,) minimum corner of the volume relative to the tip, m.
+        side_bins: bins beyond each end of the blade (y), outside the blade part.
+        above_bins: bins over the blade's top (z), outside the blade part.
     """
 
     bins: tuple[int, int, int]
     bin_size: tuple[float, float, float]
     lower: tuple[float, float, float]
+    side_bins: int = 0
+    above_bins: int = 0
 
     def __post_init__(self) -> None:
         if len(self.bins) != 3 or min(self.bins) < 1:
             raise ValueError(f"sampling bins must be three counts >= 1, got {self.bins}")
         if len(self.bin_size) != 3 or min(self.bin_size) <= 0:
             raise ValueError(f"sampling bin_size must be three lengths > 0, got {self.bin_size}")
+        if not (0 <= 2 * self.side_bins < self.bins[1] and 0 <= self.above_bins < self.bins[2]):
+            raise ValueError(
+                f"side_bins {self.side_bins} and above_bins {self.above_bins} must leave a blade "
+                f"part in the {self.bins} bins"
+            )
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> SamplingGrid:
-        """The grid of a validated config's ``sampling`` and ``blade`` sections."""
+        """The grid of a validated config's ``sampling`` and ``blade`` sections:
+        ``sampling.bins`` are the blade part's counts, the side and above bins are added."""
         s, b = config["sampling"], config["blade"]
         nx, ny, nz = (int(n) for n in s["bins"])
+        side, above = int(s["side_bins"]), int(s["above_bins"])
         height = b["height"] + s["below_edge"]
+        dy = b["width"] / ny
         return cls(
-            bins=(nx, ny, nz),
-            bin_size=(s["length"] / nx, b["width"] / ny, height / nz),
-            lower=(0.0, -b["width"] / 2, -s["below_edge"]),
+            bins=(nx, ny + 2 * side, nz + above),
+            bin_size=(s["length"] / nx, dy, height / nz),
+            lower=(0.0, -b["width"] / 2 - side * dy, -s["below_edge"]),
+            side_bins=side,
+            above_bins=above,
         )
+
+    @property
+    def blade_part(self) -> tuple[int, int, int]:
+        """(y0, y1, z1): the blade part is bins [:, y0:y1, :z1] of the grid."""
+        return self.side_bins, self.bins[1] - self.side_bins, self.bins[2] - self.above_bins
+
+    def attrs(self) -> dict[str, list[int] | list[float]]:
+        """The grid's entries in a field store's attributes (docs/data.md)."""
+        return {
+            "bins": list(self.bins),
+            "bin_size": list(self.bin_size),
+            "blade_part": list(self.blade_part),
+        }
 
     @property
     def bin_volume(self) -> float:

@@ -50,11 +50,20 @@ class StoreData:
     row_dt: float = 0.0
     #: the store's bin size (x, y, z) in m; None where the source does not say
     bin_size: tuple[float, float, float] | None = None
+    #: (y0, y1, z1): bins [:, y0:y1, :z1] lie across the blade and up to its top
+    #: (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`); None: the whole grid
+    blade_part: tuple[int, int, int] | None = None
 
     @property
     def grid(self) -> tuple[int, int, int]:
         nx, ny, nz = (int(n) for n in self.density.shape[1:4])
         return nx, ny, nz
+
+    @property
+    def part(self) -> tuple[int, int, int]:
+        """:attr:`blade_part`, the whole grid where the store does not say."""
+        _, ny, nz = self.grid
+        return self.blade_part or (0, ny, nz)
 
     @property
     def name(self) -> str:
@@ -88,6 +97,7 @@ def from_arrays(
     source: str = "",
     row_dt: float = 0.0,
     bin_size: Sequence[float] | None = None,
+    blade_part: Sequence[int] | None = None,
 ) -> StoreData:
     """Build a :class:`StoreData` from arrays shaped like a field store's, checking shapes."""
     v, rho = _f32(velocity), _f32(density)
@@ -117,6 +127,9 @@ def from_arrays(
         source,
         float(row_dt),
         None if bin_size is None else (float(bin_size[0]), float(bin_size[1]), float(bin_size[2])),
+        None
+        if blade_part is None
+        else (int(blade_part[0]), int(blade_part[1]), int(blade_part[2])),
     )
 
 
@@ -138,6 +151,7 @@ def load_store(path: str | Path) -> StoreData:
         source=str(path),
         row_dt=float(ds.attrs.get("dt") or 0.0) * float(ds.attrs.get("sample_every") or 1),
         bin_size=ds.attrs.get("bin_size") or None,
+        blade_part=ds.attrs.get("blade_part") or None,
     )
 
 
@@ -147,12 +161,14 @@ def check_grid(
     bin_size: Sequence[float] | None = None,
     *,
     distinct: bool = True,
+    blade_part: Sequence[int] | None = None,
 ) -> tuple[int, int, int]:
     """The common grid of ``stores`` (or ``grid`` if given); DozerlabError on any mismatch.
 
     ``bin_size`` (m; default: the first store's that has one) must match every store's that
     has one: a model learns forces per bin, so the same bin counts over another volume are
-    other fields. With ``distinct``, the stores are of distinct points (:func:`check_distinct`).
+    other fields. So must the blade part (:attr:`StoreData.part`; default: the first store's).
+    With ``distinct``, the stores are of distinct points (:func:`check_distinct`).
     """
     if not stores:
         raise ValueError("no field stores given (at least one is needed)")
@@ -175,6 +191,14 @@ def check_grid(
             raise DozerlabError(
                 f"field store {s.source or s.name} has bins of {list(s.bin_size)} m but the model expects "
                 f"{list(size)} m; models only apply to stores sampled with the same sampling volume and bins"
+            )
+    part = stores[0].part if blade_part is None else tuple(int(n) for n in blade_part)
+    for s in stores:
+        if s.part != part:
+            raise DozerlabError(
+                f"field store {s.source or s.name} has its blade part at bins {list(s.part)} "
+                f"(y0, y1, z1) but the model expects {list(part)}; models only apply to stores "
+                "sampled with the same sampling.side_bins and sampling.above_bins"
             )
     return expected
 

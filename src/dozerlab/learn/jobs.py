@@ -299,7 +299,7 @@ def evaluate_job(model_dir: str | Path, stores: list[str | Path]) -> dict[str, A
     """Metrics of a saved model on ``stores`` (per store and overall)."""
     model, meta = pyfunc.load(model_dir)
     data = [load_store(p) for p in stores]
-    check_grid(data, model.grid, meta.get("bin_size"))
+    check_grid(data, model.grid, meta.get("bin_size"), blade_part=model.blade_part)
     result = evaluate(model, data)
     result["points"] = strip_series(result["points"])
     return result

@@ -69,9 +69,15 @@ MODEL_DIR = model_dir_kind("a dozerlab force model directory (written by train)"
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:
     """Rebuild a :class:`ForceModel` from its metadata and state-dict file (CPU, eval mode)."""
-    # models saved before the contact inputs have no "contact" key
+    # models saved before the contact inputs have no "contact" key, before the side and above
+    # bins no "blade_part" (they read the whole grid)
+    part = meta.get("blade_part")
     model = ForceModel(
-        meta["kind"], tuple(meta["grid"]), meta["history"], bool(meta.get("contact", False))
+        meta["kind"],
+        tuple(meta["grid"]),
+        meta["history"],
+        bool(meta.get("contact", False)),
+        None if part is None else (int(part[0]), int(part[1]), int(part[2])),
     )
     model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
     return model.eval()

@@ -190,7 +190,9 @@ def train_model(
         samples, learn["validation_fraction"], learn["validation_block"]
     )
     train, val = Batches(train_s, dev), Batches(val_s, dev)
-    model = ForceModel(kind, stores[0].grid, learn["history"], learn["contact"]).to(dev)
+    model = ForceModel(
+        kind, stores[0].grid, learn["history"], learn["contact"], stores[0].blade_part
+    ).to(dev)
     fit_normalization(model, train)
     result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()

@@ -58,7 +58,7 @@ def check_no_leak(meta: dict[str, Any], stores: list[StoreData]) -> None:
 
 def evaluate(model: ForceModel, stores: list[StoreData]) -> dict[str, Any]:
     """Metrics of ``model`` on each store and over all of them (no plots, no checks of leaks)."""
-    check_grid(stores, model.grid)
+    check_grid(stores, model.grid, blade_part=model.blade_part)
     points, preds, trues = [], [], []
     for s in stores:
         t, pred, true = predict_store(model, s)
@@ -111,7 +111,7 @@ def validate(
     stores = [s for g in GROUPS for s in held_out.get(g, [])]
     if not stores:
         raise ValueError("no held-out stores given (--interpolation, --extrapolation, --transfer)")
-    check_grid(stores, model.grid, meta.get("bin_size"))
+    check_grid(stores, model.grid, meta.get("bin_size"), blade_part=model.blade_part)
     check_no_leak(meta, stores)
     groups = {g: evaluate(model, held_out[g]) for g in GROUPS if held_out.get(g)}
     allpts = [p for g in groups.values() for p in g["points"]]

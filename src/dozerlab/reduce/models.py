@@ -58,8 +58,9 @@ class FieldModel(Protocol):
 class RunFrame:
     """What a reduced run is, for the checks of its models: its source (``trajectory``, a path
     for messages), sampled ``rows``, bin counts ``bins``, bin edge lengths ``bin_size`` (m), the
-    time between rows ``row_dt`` (s) and its labels ``point`` (scenario, speed m/s, depth m;
-    a label may be None where not given)."""
+    time between rows ``row_dt`` (s), its labels ``point`` (scenario, speed m/s, depth m;
+    a label may be None where not given) and the grid's ``blade_part``
+    (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`; None: the whole grid)."""
 
     trajectory: str
     rows: int
@@ -67,6 +68,7 @@ class RunFrame:
     bin_size: tuple[float, float, float]
     row_dt: float
     point: dict[str, Any]
+    blade_part: tuple[int, int, int] | None = None
 
 
 def _check_frame(what: str, bins: tuple[int, ...], bin_size: Any, run: RunFrame) -> None:
@@ -207,8 +209,17 @@ class ForcePredictor:
         self.bin_size = meta.get("bin_size")
 
     def check_run(self, run: RunFrame) -> None:
-        """Refuse a run whose bins or bin size are not those the model was trained on."""
+        """Refuse a run whose bins, bin size or blade part are not those the model was
+        trained on."""
         _check_frame(f"force model {self.name}", self.module.grid, self.bin_size, run)
+        _, ny, nz = run.bins
+        part = run.blade_part or (0, ny, nz)
+        if tuple(self.module.blade_part) != tuple(part):
+            raise DozerlabError(
+                f"force model {self.name} reads bins {list(self.module.blade_part)} (y0, y1, z1) "
+                f"as the blade's but the run's blade part is {list(part)} (the config's "
+                "sampling.side_bins and sampling.above_bins); both must be the same"
+            )
 
     def predict(
         self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray

@@ -90,6 +90,7 @@ def reduce_run(
             "speed": speed if speed is not None else round(traj.speed, 6),
             "depth": depth,
         },
+        grid.blade_part,
     )
     field_model.check_run(frame)
     force_model.check_run(frame)
@@ -105,8 +106,7 @@ def reduce_run(
         "scenario": scenario or bed.scenario,
         "speed": speed if speed is not None else round(traj.speed, 6),
         "depth": depth,
-        "bins": list(grid.bins),
-        "bin_size": list(grid.bin_size),
+        **grid.attrs(),
         "dt": dt,
         "iterations": int(config["solver"]["iterations"]),
         "sample_every": every,
