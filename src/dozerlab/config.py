@@ -221,7 +221,7 @@ def memory_estimate(config: Mapping[str, Any]) -> dict[str, float]:
     """
     s, sweep = config["sampling"], config["sweep"]
     nx, ny, nz = s["bins"]
-    cells = nx * (ny + 2 * s["side_bins"]) * (nz + s["above_bins"])
+    cells = (nx + s["behind_bins"]) * (ny + 2 * s["side_bins"]) * (nz + s["above_bins"])
     dt, length = config["solver"]["dt"], config["bed"]["length"]
     steps = [length / (v * dt) / s["every"] for v in sweep["speeds"]]
     runs = len(sweep["scenarios"]) * len(sweep["depths"])

@@ -110,19 +110,27 @@ def test_config_grid_spans_blade_and_below_edge():
     assert z[-1] + grid.bin_size[2] / 2 == pytest.approx(0.5)
 
 
-def test_side_and_above_bins_widen_the_volume_around_the_blade_part():
+def test_behind_side_and_above_bins_extend_the_volume_around_the_blade_part():
     cfg = load_config(
         {
             "blade": {"width": 0.7, "height": 0.4},
-            "sampling": {"below_edge": 0.1, "bins": [16, 12, 8], "side_bins": 3, "above_bins": 2},
+            "sampling": {
+                "length": 0.8,
+                "below_edge": 0.1,
+                "bins": [16, 12, 8],
+                "behind_bins": 8,
+                "side_bins": 3,
+                "above_bins": 2,
+            },
         }
     )
     grid = SamplingGrid.from_config(cfg)
-    assert grid.bins == (16, 18, 10) and grid.blade_part == (3, 15, 8)
-    assert grid.bin_size[1:] == pytest.approx((0.7 / 12, 0.5 / 8))
-    _, y, z = grid.centres()
-    y0, y1, z1 = grid.blade_part
-    # the blade part is the blade-wide grid, the same bins as without side and above bins
+    assert grid.bins == (24, 18, 10) and grid.blade_part == (8, 3, 15, 8)
+    assert grid.bin_size == pytest.approx((0.05, 0.7 / 12, 0.5 / 8))
+    x, y, z = grid.centres()
+    x0, y0, y1, z1 = grid.blade_part
+    # the blade part is the grid without those bins: in front of the face, across the blade
+    assert (x[0] - 0.025, x[x0] - 0.025, x[-1] + 0.025) == pytest.approx((-0.4, 0.0, 0.8))
     assert (y[y0] - grid.bin_size[1] / 2, y[y1 - 1] + grid.bin_size[1] / 2) == pytest.approx(
         (-0.35, 0.35)
     )
@@ -130,12 +138,12 @@ def test_side_and_above_bins_widen_the_volume_around_the_blade_part():
     assert y[0] - grid.bin_size[1] / 2 == pytest.approx(-0.35 - 3 * 0.7 / 12)
     assert z[-1] + grid.bin_size[2] / 2 == pytest.approx(0.4 + 2 * 0.5 / 8)
     assert grid.attrs() == {
-        "bins": [16, 18, 10],
+        "bins": [24, 18, 10],
         "bin_size": list(grid.bin_size),
-        "blade_part": [3, 15, 8],
+        "blade_part": [8, 3, 15, 8],
     }
     plain = SamplingGrid.from_config(load_config({"sampling": {"bins": [16, 12, 8]}}))
-    assert plain.blade_part == (0, 12, 8)
+    assert plain.blade_part == (0, 0, 12, 8)
     with pytest.raises(ValueError, match="blade part"):
         SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0), side_bins=2)
 

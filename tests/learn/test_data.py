@@ -117,9 +117,11 @@ def test_loop_fields_pair_the_loops_velocity_and_density_with_ndems_force():
 
 def test_stores_of_another_blade_part_are_refused(store_files):
     a, b = (load_store(p) for p in store_files["train"][:2])
-    assert a.blade_part is None and a.part == (0, 6, 4)
-    b.blade_part = (1, 5, 4)  # the same bins, split into a blade part and side bins
-    with pytest.raises(DozerlabError, match=r"blade part at bins \[1, 5, 4\].*side_bins"):
+    assert a.blade_part is None and a.part == (0, 0, 6, 4)
+    b.blade_part = (0, 1, 5, 4)  # the same bins, split into a blade part and side bins
+    with pytest.raises(DozerlabError, match=r"blade part at bins \[0, 1, 5, 4\].*side_bins"):
         check_grid([a, b])
     with pytest.raises(DozerlabError, match="blade part"):
-        check_grid([a], a.grid, blade_part=(1, 5, 4))
+        check_grid([a], a.grid, blade_part=(2, 0, 6, 4))
+    with pytest.raises(DozerlabError, match="four bin indices"):
+        check_grid([a], a.grid, blade_part=(0, 6, 4))

@@ -220,17 +220,18 @@ def test_a_model_with_a_blade_part_reads_only_those_bins(kind):
     """Beside and above the blade part the fields do not reach the model: the backbone is
     built on the part's grid, and changing the other bins changes nothing."""
     torch.manual_seed(0)
-    model = ForceModel(kind, (8, 10, 6), history=2, contact=True, blade_part=(2, 8, 4)).eval()
-    assert model.spec()["blade_part"] == [2, 8, 4]
+    model = ForceModel(kind, (8, 10, 6), history=2, contact=True, blade_part=(3, 2, 8, 4)).eval()
+    assert model.spec()["blade_part"] == [3, 2, 8, 4]
     v, rho = torch.randn(3, 2, 8, 10, 6, 3), torch.rand(3, 2, 8, 10, 6) * 1000
     vb = torch.randn(3, 2, 3)
     with torch.no_grad():
         before = model(v, rho, vb)
         v[:, :, :, :2], rho[:, :, :, 8:], v[..., 4:, :] = 5.0, 3000.0, -2.0
+        rho[:, :, :3] = 2500.0  # behind the face
         after = model(v, rho, vb)
-        rho[:, :, 0, 4, 1] += 500.0  # a bin of the part, against the face
+        rho[:, :, 3, 4, 1] += 500.0  # a bin of the part, against the face
         moved = model(v, rho, vb)
     torch.testing.assert_close(before, after)
     assert not torch.allclose(after, moved)
     with pytest.raises(ValueError, match="blade_part"):
-        ForceModel(kind, (8, 10, 6), blade_part=(2, 11, 4))
+        ForceModel(kind, (8, 10, 6), blade_part=(0, 2, 11, 4))

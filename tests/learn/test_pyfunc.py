@@ -70,10 +70,10 @@ def test_a_model_saved_before_the_contact_inputs_loads_without_them(train_stores
 def test_a_model_saved_before_the_blade_part_reads_the_whole_grid(saved, train_stores):
     model, path = saved
     meta = json.loads((path / "artifacts" / "meta.json").read_text())
-    assert meta["blade_part"] == [0, 6, 4]
+    assert meta["blade_part"] == [0, 0, 6, 4]
     del meta["blade_part"]
     back = pyfunc.build(meta, path / "artifacts" / "weights.pt")
-    assert back.blade_part == (0, 6, 4)
+    assert back.blade_part == (0, 0, 6, 4)
     arrays = {k: v[:5] for k, v in _inputs(train_stores[1]).items()}
     np.testing.assert_array_equal(
         pyfunc.predict_arrays(back, arrays), pyfunc.predict_arrays(model, arrays)

@@ -70,9 +70,9 @@ def test_a_run_whose_blade_part_the_force_model_does_not_read_is_refused(ndem_ru
     _, ny, nz = store.grid
     frame = RunFrame("t.csv", 10, store.grid, store.bin_size, store.row_dt, {})
     forces.check_run(frame)  # no blade part given: the whole grid, the model's
-    forces.check_run(replace(frame, blade_part=(0, ny, nz)))
-    with pytest.raises(DozerlabError, match=r"reads bins \[0, \d+, \d+\] .*side_bins"):
-        forces.check_run(replace(frame, blade_part=(1, ny - 1, nz)))
+    forces.check_run(replace(frame, blade_part=(0, 0, ny, nz)))
+    with pytest.raises(DozerlabError, match=r"reads bins \[0, 0, \d+, \d+\] .*behind_bins"):
+        forces.check_run(replace(frame, blade_part=(2, 0, ny, nz)))
 
 
 def test_a_pyfunc_evolution_model_predicts_as_the_model_itself(ndem_run, tmp_path):

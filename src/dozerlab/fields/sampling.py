@@ -1,12 +1,13 @@
 """Field sampling (docs/data.md): a grid of bins attached to the blade and particle–bin weights.
 
 The sampling volume is a box in the blade frame (origin at the tip, axes as the world's, the blade
-only translates): x ∈ [0, length] in front of the front face, y across the blade's width and
-``side_bins`` more bins beyond each of its ends, z from ``below_edge`` below the lower edge up
-to the blade's top and ``above_bins`` more bins over it. It holds (Nx, Ny, Nz) bins, of which
-the **blade part** — the bins across the blade's width, up to its top — is what pushes on the
-blade (the force models read only it); the bins beside and above carry the material the blade
-heaps into windrows and piles (the reduced simulation moves grains with them).
+only translates): x ∈ [0, length] in front of the front face and ``behind_bins`` more bins
+behind it, y across the blade's width and ``side_bins`` more bins beyond each of its ends, z from
+``below_edge`` below the lower edge up to the blade's top and ``above_bins`` more bins over it.
+It holds (Nx, Ny, Nz) bins, of which the **blade part** — the bins in front of the face, across
+the blade's width, up to its top — is what pushes on the blade (the force models read only it);
+the others hold the windrows the blade heaps beside it and their slumping into its cut behind
+it, which the reduced simulation moves grains with.
 
 Particle–bin weight (thesis algorithm 1): the fraction of the particle's axis-aligned bounding box
 inside the bin, w = d_x d_y d_z / (2r)³ with d the per-axis overlap of the intervals
@@ -106,6 +107,7 @@ class SamplingGrid:
         bins: (Nx, Ny, Nz) bin counts.
         bin_size: (3,) bin edge lengths, m.
         lower: (3,) minimum corner of the volume relative to the tip, m.
+        behind_bins: bins behind the blade's face (x), outside the blade part.
         side_bins: bins beyond each end of the blade (y), outside the blade part.
         above_bins: bins over the blade's top (z), outside the blade part.
     """
@@ -113,6 +115,7 @@ class SamplingGrid:
     bins: tuple[int, int, int]
     bin_size: tuple[float, float, float]
     lower: tuple[float, float, float]
+    behind_bins: int = 0
     side_bins: int = 0
     above_bins: int = 0
 
@@ -121,33 +124,43 @@ class SamplingGrid:
             raise ValueError(f"sampling bins must be three counts >= 1, got {self.bins}")
         if len(self.bin_size) != 3 or min(self.bin_size) <= 0:
             raise ValueError(f"sampling bin_size must be three lengths > 0, got {self.bin_size}")
-        if not (0 <= 2 * self.side_bins < self.bins[1] and 0 <= self.above_bins < self.bins[2]):
+        if not (
+            0 <= self.behind_bins < self.bins[0]
+            and 0 <= 2 * self.side_bins < self.bins[1]
+            and 0 <= self.above_bins < self.bins[2]
+        ):
             raise ValueError(
-                f"side_bins {self.side_bins} and above_bins {self.above_bins} must leave a blade "
-                f"part in the {self.bins} bins"
+                f"behind_bins {self.behind_bins}, side_bins {self.side_bins} and above_bins "
+                f"{self.above_bins} must leave a blade part in the {self.bins} bins"
             )
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> SamplingGrid:
         """The grid of a validated config's ``sampling`` and ``blade`` sections:
-        ``sampling.bins`` are the blade part's counts, the side and above bins are added."""
+        ``sampling.bins`` are the blade part's counts, the behind, side and above bins are added."""
         s, b = config["sampling"], config["blade"]
         nx, ny, nz = (int(n) for n in s["bins"])
-        side, above = int(s["side_bins"]), int(s["above_bins"])
+        behind, side, above = (int(s[k]) for k in ("behind_bins", "side_bins", "above_bins"))
         height = b["height"] + s["below_edge"]
-        dy = b["width"] / ny
+        dx, dy = s["length"] / nx, b["width"] / ny
         return cls(
-            bins=(nx, ny + 2 * side, nz + above),
-            bin_size=(s["length"] / nx, dy, height / nz),
-            lower=(0.0, -b["width"] / 2 - side * dy, -s["below_edge"]),
+            bins=(nx + behind, ny + 2 * side, nz + above),
+            bin_size=(dx, dy, height / nz),
+            lower=(-behind * dx, -b["width"] / 2 - side * dy, -s["below_edge"]),
+            behind_bins=behind,
             side_bins=side,
             above_bins=above,
         )
 
     @property
-    def blade_part(self) -> tuple[int, int, int]:
-        """(y0, y1, z1): the blade part is bins [:, y0:y1, :z1] of the grid."""
-        return self.side_bins, self.bins[1] - self.side_bins, self.bins[2] - self.above_bins
+    def blade_part(self) -> tuple[int, int, int, int]:
+        """(x0, y0, y1, z1): the blade part is bins [x0:, y0:y1, :z1] of the grid."""
+        return (
+            self.behind_bins,
+            self.side_bins,
+            self.bins[1] - self.side_bins,
+            self.bins[2] - self.above_bins,
+        )
 
     def attrs(self) -> dict[str, list[int] | list[float]]:
         """The grid's entries in a field store's attributes (docs/data.md)."""

@@ -50,9 +50,9 @@ class StoreData:
     row_dt: float = 0.0
     #: the store's bin size (x, y, z) in m; None where the source does not say
     bin_size: tuple[float, float, float] | None = None
-    #: (y0, y1, z1): bins [:, y0:y1, :z1] lie across the blade and up to its top
-    #: (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`); None: the whole grid
-    blade_part: tuple[int, int, int] | None = None
+    #: (x0, y0, y1, z1): bins [x0:, y0:y1, :z1] lie in front of the blade, across it and up to
+    #: its top (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`); None: the whole grid
+    blade_part: tuple[int, int, int, int] | None = None
 
     @property
     def grid(self) -> tuple[int, int, int]:
@@ -60,10 +60,10 @@ class StoreData:
         return nx, ny, nz
 
     @property
-    def part(self) -> tuple[int, int, int]:
+    def part(self) -> tuple[int, int, int, int]:
         """:attr:`blade_part`, the whole grid where the store does not say."""
         _, ny, nz = self.grid
-        return self.blade_part or (0, ny, nz)
+        return self.blade_part or (0, 0, ny, nz)
 
     @property
     def name(self) -> str:
@@ -79,6 +79,13 @@ def point_key(point: dict[str, Any]) -> tuple[str, str] | None:
     if not {"scenario", "speed", "depth"} <= point.keys() or None in point.values():
         return None
     return SweepPoint(str(point["scenario"]), float(point["speed"]), float(point["depth"])).key
+
+
+def blade_part_of(a: Sequence[int]) -> tuple[int, int, int, int]:
+    """A blade part's four bin indices (x0, y0, y1, z1) as ints; DozerlabError otherwise."""
+    if len(a) != 4:
+        raise DozerlabError(f"a blade part is four bin indices (x0, y0, y1, z1), got {list(a)}")
+    return int(a[0]), int(a[1]), int(a[2]), int(a[3])
 
 
 def _f32(a: Any) -> np.ndarray:
@@ -127,9 +134,7 @@ def from_arrays(
         source,
         float(row_dt),
         None if bin_size is None else (float(bin_size[0]), float(bin_size[1]), float(bin_size[2])),
-        None
-        if blade_part is None
-        else (int(blade_part[0]), int(blade_part[1]), int(blade_part[2])),
+        None if blade_part is None else blade_part_of(blade_part),
     )
 
 
@@ -192,13 +197,13 @@ def check_grid(
                 f"field store {s.source or s.name} has bins of {list(s.bin_size)} m but the model expects "
                 f"{list(size)} m; models only apply to stores sampled with the same sampling volume and bins"
             )
-    part = stores[0].part if blade_part is None else tuple(int(n) for n in blade_part)
+    part = stores[0].part if blade_part is None else blade_part_of(blade_part)
     for s in stores:
         if s.part != part:
             raise DozerlabError(
                 f"field store {s.source or s.name} has its blade part at bins {list(s.part)} "
-                f"(y0, y1, z1) but the model expects {list(part)}; models only apply to stores "
-                "sampled with the same sampling.side_bins and sampling.above_bins"
+                f"(x0, y0, y1, z1) but the model expects {list(part)}; models only apply to "
+                "stores sampled with the same sampling.behind_bins, side_bins and above_bins"
             )
     return expected
 

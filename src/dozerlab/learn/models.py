@@ -340,9 +340,9 @@ class ForceModel(nn.Module):
     ``forward(velocity (B, H, Nx, Ny, Nz, 3), density (B, H, Nx, Ny, Nz), blade_velocity
     (B, H, 3))``, float32, H = ``history`` steps oldest first. With ``contact`` the conditioning
     ends in the pushing gate and ``force_x`` is clipped at 0 (the module docstring). With
-    ``blade_part`` (y0, y1, z1) it reads only bins [:, y0:y1, :z1] of the (Nx, Ny, Nz) ``grid``
-    (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`): the material beside and above
-    the blade pushes on it only through the blade part.
+    ``blade_part`` (x0, y0, y1, z1) it reads only bins [x0:, y0:y1, :z1] of the (Nx, Ny, Nz)
+    ``grid`` (:attr:`dozerlab.fields.sampling.SamplingGrid.blade_part`): the material behind,
+    beside and above the blade pushes on it only through the blade part.
     """
 
     chan_mean: torch.Tensor
@@ -358,7 +358,7 @@ class ForceModel(nn.Module):
         grid: tuple[int, int, int],
         history: int = 1,
         contact: bool = False,
-        blade_part: tuple[int, int, int] | None = None,
+        blade_part: tuple[int, int, int, int] | None = None,
     ) -> None:
         super().__init__()
         if kind not in BACKBONES:
@@ -366,13 +366,16 @@ class ForceModel(nn.Module):
         nx, ny, nz = (int(n) for n in grid)
         self.kind, self.grid, self.history = kind, (nx, ny, nz), int(history)
         self.contact = bool(contact)
-        y0, y1, z1 = (0, ny, nz) if blade_part is None else (int(n) for n in blade_part)
-        if not (0 <= y0 < y1 <= ny and 0 < z1 <= nz):
+        part = (0, 0, ny, nz) if blade_part is None else tuple(int(n) for n in blade_part)
+        if len(part) != 4 or not (
+            0 <= part[0] < nx and 0 <= part[1] < part[2] <= ny and 0 < part[3] <= nz
+        ):
             raise ValueError(f"blade_part {blade_part} is not a part of the {self.grid} grid")
-        self.blade_part = (y0, y1, z1)
+        x0, y0, y1, z1 = part
+        self.blade_part = (x0, y0, y1, z1)
         c_in = n_channels(self.history)
         cond = 3 * self.history + (CONTACT_ENTRIES if self.contact else 0)
-        self.backbone = BACKBONES[kind](c_in, cond, (nx, y1 - y0, z1))
+        self.backbone = BACKBONES[kind](c_in, cond, (nx - x0, y1 - y0, z1))
         for name, n in (("chan_mean", c_in), ("cond_mean", cond), ("y_mean", OUTPUTS)):
             self.register_buffer(name, torch.zeros(n))
         for name, n in (("chan_std", c_in), ("cond_std", cond), ("y_std", OUTPUTS)):
@@ -397,8 +400,8 @@ class ForceModel(nn.Module):
         Channels: the H steps' own channels (oldest first), then the H − 1 changes. Written in
         place into one tensor (16× faster than concatenating channel-last parts and permuting),
         so the inputs must not require gradients. Only the blade part is read."""
-        y0, y1, z1 = self.blade_part
-        velocity, density = velocity[:, :, :, y0:y1, :z1], density[:, :, :, y0:y1, :z1]
+        x0, y0, y1, z1 = self.blade_part
+        velocity, density = velocity[:, :, x0:, y0:y1, :z1], density[:, :, x0:, y0:y1, :z1]
         b, h, nx, ny, nz = density.shape
         out = velocity.new_empty((b, n_channels(h), nx, ny, nz))
         steps = out[:, : CHANNELS_PER_STEP * h].view(b, h, CHANNELS_PER_STEP, nx, ny, nz)

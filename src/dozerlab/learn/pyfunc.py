@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from dozerlab.integrity import DamagedFileError, read_json, sha256_file, sha256_json
-from dozerlab.learn.data import TARGET_NAMES
+from dozerlab.learn.data import TARGET_NAMES, blade_part_of
 from dozerlab.learn.models import ForceModel
 from dozerlab.runtime import DozerlabError, OutputKind
 
@@ -69,15 +69,15 @@ MODEL_DIR = model_dir_kind("a dozerlab force model directory (written by train)"
 
 def build(meta: dict[str, Any], weights: str | Path) -> ForceModel:
     """Rebuild a :class:`ForceModel` from its metadata and state-dict file (CPU, eval mode)."""
-    # models saved before the contact inputs have no "contact" key, before the side and above
-    # bins no "blade_part" (they read the whole grid)
+    # models saved before the contact inputs have no "contact" key, before the volume's bins
+    # around the blade part no "blade_part" (they read the whole grid)
     part = meta.get("blade_part")
     model = ForceModel(
         meta["kind"],
         tuple(meta["grid"]),
         meta["history"],
         bool(meta.get("contact", False)),
-        None if part is None else (int(part[0]), int(part[1]), int(part[2])),
+        None if part is None else blade_part_of(part),
     )
     model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
     return model.eval()

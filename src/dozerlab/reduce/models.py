@@ -68,7 +68,7 @@ class RunFrame:
     bin_size: tuple[float, float, float]
     row_dt: float
     point: dict[str, Any]
-    blade_part: tuple[int, int, int] | None = None
+    blade_part: tuple[int, int, int, int] | None = None
 
 
 def _check_frame(what: str, bins: tuple[int, ...], bin_size: Any, run: RunFrame) -> None:
@@ -213,12 +213,12 @@ class ForcePredictor:
         trained on."""
         _check_frame(f"force model {self.name}", self.module.grid, self.bin_size, run)
         _, ny, nz = run.bins
-        part = run.blade_part or (0, ny, nz)
+        part = run.blade_part or (0, 0, ny, nz)
         if tuple(self.module.blade_part) != tuple(part):
             raise DozerlabError(
-                f"force model {self.name} reads bins {list(self.module.blade_part)} (y0, y1, z1) "
-                f"as the blade's but the run's blade part is {list(part)} (the config's "
-                "sampling.side_bins and sampling.above_bins); both must be the same"
+                f"force model {self.name} reads bins {list(self.module.blade_part)} (x0, y0, y1, "
+                f"z1) as the blade's but the run's blade part is {list(part)} (the config's "
+                "sampling.behind_bins, side_bins and above_bins); both must be the same"
             )
 
     def predict(
