@@ -20,8 +20,11 @@ seed, beside its run from the bed itself), and each design's spread over its run
 is printed beside the twins'. Every one of these runs is compared with the one full run, so a
 design that changes nothing but the chaos draws its figures from the twins' distribution. The
 design passes where, on each of the three figures, its mean over its runs is no worse than the
-twins' mean and its worst run no worse than the worst twin: the mean catches a bias the chaos
-hides in any single run, the worst an occasional large miss.
+worst twin: its typical run lands within the range chaos alone spans. Stricter rules are not
+honest with three or four runs a side: a design identical to the full solve would have its mean
+worse than the twins' mean on a given figure half the time, and its worst of four runs worse
+than the worst of three twins four times in seven, so it would fail one of six such comparisons
+most of the time. The printed spreads show how far inside or outside the range each figure lies.
 
     python benchmarks/ndem_active_zone.py --results results --configfile config/config.yaml
     python benchmarks/ndem_active_zone.py --points hill:0.875:0.045 --threads 1 --seeds 1 2 3 \
@@ -149,13 +152,11 @@ def spread(figs: list[dict[str, float]]) -> dict[str, dict[str, float]]:
 
 
 def passes_spread(design: dict[str, dict[str, float]], twins: dict[str, dict[str, float]]) -> bool:
-    """Whether a design's runs are no worse than the twins on every figure, both on the mean
-    and on the worst run (``spread`` of each)."""
+    """Whether a design's mean over its runs is no worse than the worst twin on every figure
+    (``spread`` of each)."""
     for name in FIGURES:
         sign = -1.0 if name == "surface_accuracy" else 1.0
-        if sign * design[name]["mean"] > sign * twins[name]["mean"]:
-            return False
-        if sign * design[name]["worst"] > sign * twins[name]["worst"]:
+        if sign * design[name]["mean"] > sign * twins[name]["worst"]:
             return False
     return True
 
@@ -321,8 +322,8 @@ def main() -> None:
         if args.design_seeds:
             print(
                 f"{'point':<20} {'spread':<16} {'F_lp min–max (mean)':>26}  "
-                f"{'mean F min–max (mean)':>29}  {'surface min–max (mean)':>26}  ok: mean and "
-                "worst no worse than the twins'"
+                f"{'mean F min–max (mean)':>29}  {'surface min–max (mean)':>26}  ok: mean no "
+                "worse than the worst twin"
             )
             print(spread_line(label, f"twins ({len(twin_fig)})", twin_spread, ""))
             for design, _ in designs:
