@@ -63,6 +63,20 @@ def test_the_force_model_reads_only_its_history_of_rows(ndem_run):
     np.testing.assert_array_equal(t, t2)
 
 
+def test_the_batched_rows_are_each_rows_own_prediction(ndem_run):
+    tmp, _ = ndem_run
+    store = load_store(tmp / "ndem.zarr")
+    forces = ForcePredictor(tmp / "linear")
+    f, t = forces.predict_rows(store.velocity, store.density, store.blade_velocity)
+    assert f.shape == t.shape == (store.density.shape[0], 3)
+    for k in (0, 1, 5, store.density.shape[0] - 1):
+        fk, tk = forces.predict(
+            store.velocity[: k + 1], store.density[: k + 1], store.blade_velocity[: k + 1]
+        )
+        np.testing.assert_allclose(f[k], fk, rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(t[k], tk, rtol=1e-5, atol=1e-3)
+
+
 def test_a_run_whose_blade_part_the_force_model_does_not_read_is_refused(ndem_run):
     tmp, _ = ndem_run
     store = load_store(tmp / "ndem.zarr")

@@ -56,6 +56,23 @@ def test_grains_in_the_volume_move_with_the_field_and_the_others_rest_or_fly():
     np.testing.assert_allclose(state.x[4], np.array(flying) + h * fly_v, atol=1e-12)
 
 
+def test_a_grain_at_rest_where_the_field_is_slower_than_the_rest_speed_stays_at_rest():
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    tip = np.array([0.0, 0.0, 0.5])
+    x = np.array([[0.05, -0.15, 0.55], [0.35, 0.15, 0.85], [0.08, 0.1, 0.75]])
+    v = np.zeros_like(x)
+    v[2] = [0.1, 0.0, 0.0]  # moving already: the field carries it, however slowly
+    cx, _, _ = np.meshgrid(*grid.centres(), indexing="ij")
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = np.where(cx < 0.2, 0.04, 1.0)  # below the 0.05 m/s rest speed near the face
+    state = _state(x, v, grid)
+    state.step(field, np.full(grid.bins, 1500.0), tip, 0.01)
+    np.testing.assert_array_equal(state.x[0], x[0])  # at rest in a slow field: stays
+    assert not state.moving[0] and not state.v[0].any()
+    np.testing.assert_allclose(state.x[1], x[1] + [0.01, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(state.x[2], x[2] + [0.0004, 0.0, 0.0], atol=1e-12)
+
+
 def test_grains_above_the_volume_ride_with_its_top_and_fall_until_held_up():
     grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
     above = np.array([[0.2, 0.0, 1.6]])  # over the volume (top 0.9 m) and its 2-bin margin

@@ -25,6 +25,7 @@ from dozerlab.learn.dynamics.pyfunc import FORMAT as DYNAMICS_FORMAT
 from dozerlab.learn.dynamics.pyfunc import predict_arrays
 from dozerlab.learn.pyfunc import FORMAT as FORCE_FORMAT
 from dozerlab.learn.pyfunc import check_inputs, with_history
+from dozerlab.learn.pyfunc import predict_arrays as predict_force_rows
 from dozerlab.runtime import DozerlabError
 
 #: The dynamics-model name that replays the point's own NDEM store.
@@ -239,6 +240,17 @@ class ForcePredictor:
         with torch.no_grad():
             row = self.module(v, rho, vb)[0].double().numpy()
         return row[:3], row[3:6]
+
+    def predict_rows(
+        self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Force (T, 3) N and torque (T, 3) N·m of every row of (T, …) consecutive rows, each
+        from its own window of rows (as :meth:`predict` of the rows up to it), in batches."""
+        rows = predict_force_rows(
+            self.module,
+            {"velocity": velocity, "density": density, "blade_velocity": blade_velocity},
+        ).astype(np.float64)
+        return rows[:, :3], rows[:, 3:6]
 
 
 def load_field_model(

@@ -11,7 +11,10 @@ k-1 to row k, with the blade tip at p_k:
    trilinearly interpolated (mass-weighted; beyond the volume the nearest bins' value) to its
    position, and moves by h·v (left frozen, the grains just outside the volume held back the
    material the field carries: 42 % height accuracy with the truth fields on the quick sweep
-   against 66 % with 2 bins, BENCHMARKS.md); a grain above the volume keeps the top bins'
+   against 66 % with 2 bins, BENCHMARKS.md), unless it is at rest and the field there is
+   slower than ``reduced.rest_speed``: then it stays at rest and only the projection may move
+   it (the cut floor behind the blade, the bed ahead of the pile: fewer grains to project for
+   the same surface, BENCHMARKS.md); a grain above the volume keeps the top bins'
    horizontal velocity and falls until the grains below hold it up; a grain outside that
    region that is moving flies ballistically under gravity — a grain the field carried out of
    the region, or one in flight, moves until it has landed, one only nudged by the projection
@@ -27,8 +30,9 @@ k-1 to row k, with the blade tip at p_k:
    displacement over h; a grain outside the volume that the projection pushed upwards, within
    ``reduced.support_angle`` of vertical, has landed and comes to rest (sticky, like a grain on
    a high-friction bed); pushed up a steeper slope, it slides on;
-4. the fields are sampled at p_k with the NDEM algorithm (``SamplingGrid``) and the force model
-   predicts the blade force and torque from them. The field model's history is sampled the same
+4. the fields are sampled at p_k with the NDEM algorithm (``SamplingGrid``); the force model
+   predicts the blade force and torque from them, for every row in one batched call after the
+   loop, since no grain reads the force. The field model's history is sampled the same
    way from each grain's *flow* velocity (:attr:`ReducedState.flow`): the field's or the flight's
    velocity for the grains it moved, the projected velocity for the rest. Fed the projection's
    push-outs as flow (grains lifted out of overlap read as upwelling), the evolution U-Net
@@ -133,11 +137,14 @@ class PhaseTimes:
 
 
 @njit(cache=True)
-def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # pragma: no cover
+def _select(
+    x, moving, quiet, box_lower, box_upper, centre, reach, lo, cell, dims
+):  # pragma: no cover
     """One pass over every grain: which lie in the advected box [box_lower, box_upper] (3,) m,
     which within ``reach`` (3,) m of the blade box ``centre`` (3,), and the grains to project
     (sorted indices): the movable ones, every grain whose selection cell is, or neighbours, the
-    cell of a mover (in the box, near the blade or ``moving``), then the ring of obstacles
+    cell of a mover (in the box and not ``quiet`` (N,) bool, near the blade or ``moving``),
+    then the ring of obstacles
     around them, every other grain whose cell neighbours a movable one's (a movable grain
     pushed into a grain outside the projected set would keep that overlap unseen). Returns
     (inside (N,) bool, near_blade (N,) bool, selected (S,) int64, movable (S,) bool)."""
@@ -159,7 +166,7 @@ def _select(x, moving, box_lower, box_upper, centre, reach, lo, cell, dims):  # 
             cells[p, a] = min(max(int((v - lo[a]) / cell), 0), dims[a] - 1)
         inside[p], near[p] = ins, nb
         c0, c1, c2 = cells[p, 0], cells[p, 1], cells[p, 2]
-        if (ins or nb or moving[p]) and marks[c0, c1, c2] < 3:
+        if ((ins and not quiet[p]) or nb or moving[p]) and marks[c0, c1, c2] < 3:
             marks[c0, c1, c2] = 3
             sources[ns] = c0, c1, c2
             ns += 1
@@ -326,10 +333,20 @@ class ReducedState:
         upper[2] = np.inf
         centre = self.bodies.centre[-1]
         reach = self.blade_half + float(self.r.max()) * 1.5
+        box_lower = lower - reach_out * np.array([0.0, 1.0, 0.0])
+        # a grain at rest where the field is slower than the rest speed stays at rest
+        quiet = _in_box(self.x, box_lower, upper) & ~self.moving
+        cand = np.flatnonzero(quiet)
+        if cand.size:
+            vq = interpolate(
+                velocity, self.x[cand], lower, np.asarray(self.grid.bin_size), weight=density
+            )
+            quiet[cand] = np.einsum("ij,ij->i", vq, vq) < s.rest_speed * s.rest_speed
         inside, near_blade, sel, movable = _select(
             self.x,
             self.moving,
-            lower - reach_out * np.array([0.0, 1.0, 0.0]),
+            quiet,
+            box_lower,
             upper,
             centre,
             reach,
@@ -337,6 +354,7 @@ class ReducedState:
             self.cell,
             self.dims,
         )
+        inside &= ~quiet
         ballistic = self.moving & ~inside
         self.active = int(np.count_nonzero(inside | ballistic | near_blade))
         t0 = times.add("selection", t0)
