@@ -1,7 +1,7 @@
 """The simulation run: drive the blade along a trajectory through a bed and record the fields.
 
 Each solver step the blade gets the trajectory's velocity for that step; every
-``sampling.every``-th step the fields in front of the blade, the blade force and torque (about
+``sampling.every``-th step the fields around the blade, the blade force and torque (about
 the tip), its velocity and tip position are appended to the field store, which is written while
 the run goes (one chunk in memory) and appears only when the run succeeds. The job around it
 (loading, labels, MLflow, plots) is :func:`dozerlab.fields.jobs.simulate`.

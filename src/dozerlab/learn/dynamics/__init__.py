@@ -1,1 +1,1 @@
-"""Field-evolution models: how the velocity and density fields in front of the blade evolve."""
+"""Field-evolution models: how the velocity and density fields around the blade evolve."""

@@ -315,9 +315,7 @@ def render(ctx: Context) -> str | None:
             )
         )
         parts.append(_figure_table(WELL_POSED, points, skill=True))
-        parts.append(
-            html.paragraph("The grain scale and the fields in front of the blade:", "caption")
-        )
+        parts.append(html.paragraph("The grain scale and the fields around the blade:", "caption"))
         parts.append(_figure_table(GRAIN_SCALE, points, skill=False))
         parts.append(
             html.table(
