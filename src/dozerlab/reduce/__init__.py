@@ -5,4 +5,11 @@
 #: so that changing the targets or the comparison's ``moved_radii`` reruns the comparison and
 #: the report, not the runs. Here, not in ``simulation``, so that the Snakefile need not import
 #: numba to read it.
-LOOP_FIELDS = ("projection", "advect_margin", "rest_speed", "support_angle", "divergence_overlap")
+LOOP_FIELDS = (
+    "projection",
+    "advect_margin",
+    "rest_speed",
+    "support_angle",
+    "divergence_overlap",
+    "velocity_history",
+)

@@ -100,7 +100,11 @@ def reduce_run(
     geometry = BladeGeometry.from_config(config)
     vel = np.zeros((rows, *grid.bins, 3), np.float32)
     rho = np.zeros((rows, *grid.bins), np.float32)
-    flow = np.zeros_like(vel)  # the field model's velocity history (ReducedState.flow)
+    # The field model's velocity history: its own prediction of each row, or the grains' flow
+    # (ReducedState.flow) sampled back; resampled, the interpolated field is smoothed once more
+    # each row and the pile's motion ahead of the blade fades (reduced.velocity_history).
+    flow = np.zeros_like(vel)
+    predicted = settings.velocity_history == "predicted"
     x, y, z = grid.centres()
     attrs = {
         "scenario": scenario or bed.scenario,
@@ -181,10 +185,19 @@ def reduce_run(
             sweeps.append(st.sweeps)
             t0 = wallclock.perf_counter()
             near = state.near(tip)
-            # the fields and the field model's flow history in one pass over the grains
-            (vel[k], flow[k]), rho[k] = grid.sample_velocities(
-                state.x[near], (state.v[near], state.flow[near]), state.r[near], state.m[near], tip
-            )
+            if predicted:
+                flow[k] = pred_v[j]
+                (vel[k],), rho[k] = grid.sample_velocities(
+                    state.x[near], (state.v[near],), state.r[near], state.m[near], tip
+                )
+            else:  # the fields and the flow in one pass over the grains
+                (vel[k], flow[k]), rho[k] = grid.sample_velocities(
+                    state.x[near],
+                    (state.v[near], state.flow[near]),
+                    state.r[near],
+                    state.m[near],
+                    tip,
+                )
             times.steps += 1
             t0 = times.add("sampling", t0)
         # The grains never read the force: every row's in one batched call after the loop.
