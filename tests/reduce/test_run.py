@@ -72,30 +72,50 @@ class _Uniform:
     def __init__(self, grid):
         self.grid = grid
         self.seen: list[np.ndarray] = []
+        self.seen_density: list[np.ndarray] = []
 
     def check_run(self, run):
         pass
 
     def predict(self, velocity, density, blade_velocity, row):
         self.seen.append(velocity[-1].copy())
+        self.seen_density.append(density[-1].copy())
         v = np.broadcast_to(self.u, (1, *self.grid, 3)).copy()
         return v, density[-1:].copy()
 
 
-def test_the_field_model_reads_the_flow_it_gave_not_the_projected_motion(ndem_run):
-    tmp, config = ndem_run
-    grid = SamplingGrid.from_config(config)
-    model = _Uniform(grid.bins)
+def _uniform_run(tmp, config, name):
+    model = _Uniform(SamplingGrid.from_config(config).bins)
     reduce_run(
         tmp / "bed.npz",
         tmp / "speed~0.5_depth~0.06.csv",
         config,
         model,
         ForcePredictor(tmp / "linear"),
-        tmp / "uniform.zarr",
-        tmp / "uniform.npz",
+        tmp / f"{name}.zarr",
+        tmp / f"{name}.npz",
     )
-    stored = open_store(tmp / "uniform.zarr")
+    return model, open_store(tmp / f"{name}.zarr")
+
+
+def test_by_default_the_field_model_reads_its_own_velocity_and_the_sampled_density(ndem_run):
+    tmp, config = ndem_run
+    model, stored = _uniform_run(tmp, config, "own")
+    warm = int(stored.attrs["warmup_rows"])
+    assert len(model.seen) > 3
+    for k, (seen, rho) in enumerate(
+        zip(model.seen[1:], model.seen_density[1:], strict=True), start=warm
+    ):
+        np.testing.assert_array_equal(seen, np.broadcast_to(model.u, seen.shape))
+        np.testing.assert_array_equal(rho, stored["density"].values[k])
+    moved = stored["velocity"].values[warm:, 1:, :, 1:]
+    assert np.abs(moved - model.u).max() > 0.05  # what the grains did is not what it reads
+
+
+def test_with_sampled_history_the_field_model_reads_the_flow_not_the_projected_motion(ndem_run):
+    tmp, config = ndem_run
+    config = {**config, "reduced": {**config["reduced"], "velocity_history": "sampled"}}
+    model, stored = _uniform_run(tmp, config, "flow")
     warm = int(stored.attrs["warmup_rows"])
     # every grain touching a bin off the volume's floor and blade face was carried by the field
     for k, seen in enumerate(model.seen[1:], start=warm):

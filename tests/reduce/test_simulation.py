@@ -208,3 +208,18 @@ def test_the_loop_reads_only_the_reduced_fields_the_workflow_passes_its_jobs():
     passed = load_config({"reduced": {k: v for k, v in changed.items() if k in LOOP_FIELDS}})
     assert ReducedSettings.from_config(passed) == ReducedSettings.from_config(full)
     assert ReducedSettings.from_config(full) != ReducedSettings.from_config(load_config({}))
+
+
+def test_the_bed_at_rest_below_the_volume_holds_where_a_resting_grain_beside_it_yields():
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))  # z from 0.5 m up
+    tip = np.array([0.0, 0.0, 0.5])
+    carried = np.array([[0.15, 0.0, 0.53], [0.58, 0.1, 0.7]])  # in the volume, in its margin
+    below, ahead = [0.15, 0.0, 0.49], [0.62, 0.1, 0.7]  # at rest, each touching one of them
+    x = np.vstack([carried, [below, ahead]])
+    field = np.broadcast_to(np.array([1.0, 0.0, -1.0]), (*grid.bins, 3)).copy()
+    state = _state(x, np.zeros_like(x), grid)
+    state.step(field, np.full(grid.bins, 1500.0), tip, 0.01)
+    np.testing.assert_array_equal(state.x[2], below)  # held like the ground
+    assert state.x[3, 0] > ahead[0] + 1e-3  # pushed ahead by the grain the field carried
+    for a, b in ((0, 2), (1, 3)):
+        assert np.linalg.norm(state.x[a] - state.x[b]) > 0.04 * (1 - 0.05 / 2) - 1e-9
