@@ -84,8 +84,9 @@ class _Uniform:
         return v, density[-1:].copy()
 
 
-def _uniform_run(tmp, config, name):
+def _uniform_run(tmp, config, name, model_name="uniform"):
     model = _Uniform(SamplingGrid.from_config(config).bins)
+    model.name = model_name
     reduce_run(
         tmp / "bed.npz",
         tmp / "speed~0.5_depth~0.06.csv",
@@ -98,9 +99,9 @@ def _uniform_run(tmp, config, name):
     return model, open_store(tmp / f"{name}.zarr")
 
 
-def test_by_default_the_field_model_reads_its_own_velocity_and_the_sampled_density(ndem_run):
-    tmp, config = ndem_run
-    model, stored = _uniform_run(tmp, config, "own")
+def test_the_ridge_model_reads_its_own_velocity_and_the_sampled_density(ndem_run):
+    tmp, config = ndem_run  # reduced.predicted_history: [ridge] by default
+    model, stored = _uniform_run(tmp, config, "own", "ridge")
     warm = int(stored.attrs["warmup_rows"])
     assert len(model.seen) > 3
     for k, (seen, rho) in enumerate(
@@ -112,9 +113,8 @@ def test_by_default_the_field_model_reads_its_own_velocity_and_the_sampled_densi
     assert np.abs(moved - model.u).max() > 0.05  # what the grains did is not what it reads
 
 
-def test_with_sampled_history_the_field_model_reads_the_flow_not_the_projected_motion(ndem_run):
+def test_other_field_models_read_the_flow_they_gave_not_the_projected_motion(ndem_run):
     tmp, config = ndem_run
-    config = {**config, "reduced": {**config["reduced"], "velocity_history": "sampled"}}
     model, stored = _uniform_run(tmp, config, "flow")
     warm = int(stored.attrs["warmup_rows"])
     # every grain touching a bin off the volume's floor and blade face was carried by the field

@@ -11,5 +11,5 @@ LOOP_FIELDS = (
     "rest_speed",
     "support_angle",
     "divergence_overlap",
-    "velocity_history",
+    "predicted_history",
 )

@@ -102,9 +102,9 @@ def reduce_run(
     rho = np.zeros((rows, *grid.bins), np.float32)
     # The field model's velocity history: its own prediction of each row, or the grains' flow
     # (ReducedState.flow) sampled back; resampled, the interpolated field is smoothed once more
-    # each row and the pile's motion ahead of the blade fades (reduced.velocity_history).
+    # each row and the pile's motion ahead of the blade fades (reduced.predicted_history).
     flow = np.zeros_like(vel)
-    predicted = settings.velocity_history == "predicted"
+    predicted = field_model.name in settings.predicted_history
     x, y, z = grid.centres()
     attrs = {
         "scenario": scenario or bed.scenario,

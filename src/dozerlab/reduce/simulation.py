@@ -34,9 +34,9 @@ k-1 to row k, with the blade tip at p_k:
 4. the fields are sampled at p_k with the NDEM algorithm (``SamplingGrid``); the force model
    predicts the blade force and torque from them, for every row in one batched call after the
    loop, since no grain reads the force. The field model's history is the sampled density
-   and, by default (``reduced.velocity_history: predicted``), the velocity it predicted for
-   the row (resampled, the interpolated field is smoothed again each row and the pile's
-   motion ahead of the blade fades); with ``sampled``, the velocity sampled the same way from
+   and, for a model named in ``reduced.predicted_history`` (``ridge`` by default), the
+   velocity it predicted for the row (resampled, the interpolated field is smoothed again each row and the pile's
+   motion ahead of the blade fades); for the others, the velocity sampled the same way from
    each grain's *flow* (:attr:`ReducedState.flow`): the field's or the flight's velocity for
    the grains it moved, the projected velocity for the rest. Fed the projection's
    push-outs as flow (grains lifted out of overlap read as upwelling), the evolution U-Net
@@ -100,7 +100,8 @@ class ReducedSettings:
     rest_speed: float = 0.05
     support_angle: float = 60.0
     divergence_overlap: float = 0.5
-    velocity_history: str = "predicted"
+    #: the evolution models (by name) that read their own predicted velocity as history
+    predicted_history: tuple[str, ...] = ("ridge",)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ReducedSettings:
@@ -119,7 +120,7 @@ class ReducedSettings:
             rest_speed=float(r["rest_speed"]),
             support_angle=float(r["support_angle"]),
             divergence_overlap=float(r["divergence_overlap"]),
-            velocity_history=str(r["velocity_history"]),
+            predicted_history=tuple(str(m) for m in r["predicted_history"]),
         )
 
 
