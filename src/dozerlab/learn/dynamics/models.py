@@ -80,8 +80,8 @@ class RidgeStencil(nn.Module):
         """The design rows times the weights, by parts (the same sums as ``design`` @ weight):
         the stencil as one grouped 2D convolution over (y, z), a group per layer along x reading
         its three-layer slab, the position's and the control's terms added without copying them
-        into every row. Stacking the stencil first and multiplying took 2.5 ms a call on the
-        default grid against 0.6 ms (``benchmarks/reduce_loop.py``'s field inference phase)."""
+        into every row. Stacking the stencil first and multiplying took 2.1 ms a call on the
+        default grid against 0.8 ms (``benchmarks/ridge_stencil.py``, BENCHMARKS.md)."""
         b, ch, nx, ny, nz = x.shape
         d, outs = 27 * ch, self.weight.shape[-1]
         w = self.weight
