@@ -1,9 +1,11 @@
 """The ridge evolution model's inference, side by side: its forward (the stencil as one grouped
-2D convolution over (y, z), a group per layer along x) against the stacked 3×3×3 stencil times
-the weights (the forward before it) and the product of the design rows the closed-form fit
-reads with the same weights.
+2D convolution over (y, z) per box of bands, a group per layer along x) with the default bands
+(`dynamics.ridge_z_bands`) and with one box per layer, against the stacked 3×3×3 stencil times
+the weights (the forward before the convolution) and the product of the design rows the
+closed-form fit reads with the same weights.
 
-    python benchmarks/ridge_stencil.py [--bins 24 18 8] [--history 2] [--horizon 1] [--threads 1]
+    python benchmarks/ridge_stencil.py [--bins 24 18 8] [--z-bands 1 3] [--history 2] \
+        [--horizon 1] [--threads 1]
 
 Random weights and fields on the grid (the default sweep's 24 × 18 × 8); prints the ms per call
 (batch 1, as the reduced loop calls it; best of 5 rounds) of each and the largest difference of
@@ -18,6 +20,7 @@ from collections.abc import Callable
 
 import torch
 
+from dozerlab.config import load_config
 from dozerlab.learn.dynamics.models import FIELD_CHANNELS, RidgeStencil, coordinates
 from dozerlab.runtime import set_threads
 
@@ -34,9 +37,25 @@ def best_ms(f: Callable[[], torch.Tensor], repeats: int = 50, rounds: int = 5) -
     return best
 
 
+def by_design(
+    net: RidgeStencil, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor
+) -> torch.Tensor:
+    """The design rows of each box times its weights: what the closed-form fit reads."""
+    grid = tuple(x.shape[2:])
+    d = net.design(x, coords, c)  # 1, X, Y·Z, features
+    out = torch.zeros(1, grid[0], d.shape[2], net.weight.shape[-1])
+    for k, idx in enumerate(net.box_rows(grid)):
+        out[:, :, idx] = torch.einsum("bxnd,xdo->bxno", d[:, :, idx], net.weight[:, k])
+        out[:, :, idx] += net.bias[None, :, k, None, :]
+    return out.reshape(1, *grid, -1).permute(0, 4, 1, 2, 3)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bins", type=int, nargs=3, default=[24, 18, 8])
+    ap.add_argument(
+        "--z-bands", type=int, nargs="*", default=load_config({})["dynamics"]["ridge_z_bands"]
+    )
     ap.add_argument("--history", type=int, default=2)
     ap.add_argument("--horizon", type=int, default=1)
     ap.add_argument("--threads", type=int, default=1)
@@ -45,44 +64,47 @@ def main() -> None:
     torch.manual_seed(0)
     rows = args.history + args.horizon
     channels, cond, outputs = FIELD_CHANNELS * rows, 3 * rows, FIELD_CHANNELS * args.horizon
-    grid = tuple(args.bins)
-    net = RidgeStencil(channels, cond, outputs, grid[0])
+    grid = (args.bins[0], args.bins[1], args.bins[2])
+    one = RidgeStencil(channels, cond, outputs, grid)
+    banded = RidgeStencil(channels, cond, outputs, grid, (), tuple(args.z_bands))
     with torch.no_grad():
-        net.weight.normal_()
-        net.bias.normal_()
+        for net in (one, banded):
+            net.weight.normal_()
+            net.bias.normal_()
     x = torch.randn(1, channels, *grid)
     c = torch.randn(1, cond)
-    coords = coordinates(grid)  # type: ignore[arg-type]
-
-    def by_design() -> torch.Tensor:
-        d = net.design(x, coords, c)  # 1, X, Y·Z, features
-        out = torch.einsum("bxnd,xdo->bxno", d, net.weight) + net.bias[None, :, None, :]
-        return out.reshape(1, *grid, -1).permute(0, 4, 1, 2, 3)
+    coords = coordinates(grid)
 
     def by_stencil() -> torch.Tensor:
-        """The stacked stencil times the stencil's weights, the position and control added."""
+        """The stacked stencil times one box's weights, the position and control added."""
         n, d = grid[1] * grid[2], 27 * channels
-        w = net.weight
+        w, bias = one.weight[:, 0], one.bias[:, 0]
         w_st = w[:, :d].unflatten(1, (channels, 27)).transpose(1, 2).flatten(1, 2)
-        out = torch.einsum("bxnd,xdo->bxno", net.stencil(x).flatten(-2), w_st)
+        out = torch.einsum("bxnd,xdo->bxno", one.stencil(x).flatten(-2), w_st)
         pos = coords.permute(1, 2, 3, 0).reshape(grid[0], n, 3)
         out = out + torch.einsum("xnp,xpo->xno", pos, w[:, d : d + 3])[None]
         out = out + torch.einsum("bc,xco->bxo", c, w[:, d + 3 :])[:, :, None, :]
-        out = out + net.bias[None, :, None, :]
+        out = out + bias[None, :, None, :]
         return out.reshape(1, *grid, -1).permute(0, 4, 1, 2, 3)
 
     with torch.no_grad():
-        ref = by_design()
-        diff = max(float((f() - ref).abs().max()) for f in (lambda: net(x, coords, c), by_stencil))
-        conv = best_ms(lambda: net(x, coords, c))
+        ref, ref_b = by_design(one, x, coords, c), by_design(banded, x, coords, c)
+        diff = max(
+            float((one(x, coords, c) - ref).abs().max()),
+            float((by_stencil() - ref).abs().max()),
+            float((banded(x, coords, c) - ref_b).abs().max()),
+        )
+        conv_b = best_ms(lambda: banded(x, coords, c))
+        conv = best_ms(lambda: one(x, coords, c))
         stacked = best_ms(by_stencil)
-        design = best_ms(by_design)
+        design = best_ms(lambda: by_design(one, x, coords, c))
     print(
         f"ridge on {grid[0]} x {grid[1]} x {grid[2]} bins, {channels} channels, {outputs} outputs, "
-        f"{args.threads} thread(s): forward (grouped convolution) {conv:.2f} ms; stacked "
-        f"stencil x weights {stacked:.2f} ms ({stacked / conv:.1f}x); design rows x weights "
-        f"{design:.2f} ms ({design / conv:.1f}x); largest difference {diff:.2g} (outputs up to "
-        f"{float(ref.abs().max()):.3g})"
+        f"{args.threads} thread(s): forward (grouped convolution) with the z bands "
+        f"{args.z_bands} ({len(banded.boxes)} boxes a layer) {conv_b:.2f} ms, with one box "
+        f"{conv:.2f} ms; stacked stencil x weights {stacked:.2f} ms ({stacked / conv:.1f}x one "
+        f"box's forward); design rows x weights {design:.2f} ms ({design / conv:.1f}x); largest "
+        f"difference {diff:.2g} (outputs up to {float(ref.abs().max()):.3g})"
     )
 
 

@@ -125,6 +125,23 @@ def test_numbers_in_exponent_form_are_numbers(tmp_path):
     )
 
 
+@pytest.mark.parametrize(
+    ("dynamics", "field", "allowed"),
+    [
+        ({"ridge_z_bands": [4, 1]}, "dynamics.ridge_z_bands", "within 1..7"),
+        ({"ridge_z_bands": [8]}, "dynamics.ridge_z_bands", "within 1..7"),
+        ({"ridge_y_bands": [3, 18]}, "dynamics.ridge_y_bands", "within 1..17"),
+    ],
+)
+def test_ridge_bands_outside_the_sampling_volume_are_refused(dynamics, field, allowed):
+    sampling = {"bins": [16, 12, 8], "side_bins": 3}
+    with pytest.raises(ConfigError, match=rf"'{re.escape(field)}'.*{re.escape(allowed)}"):
+        load_config({"dynamics": dynamics, "sampling": sampling})
+    load_config(
+        {"dynamics": {"ridge_y_bands": [3, 15], "ridge_z_bands": [1, 7]}, "sampling": sampling}
+    )
+
+
 def test_held_out_point_on_the_training_grid_is_refused_by_config():
     held = [{"scenario": "hill", "speed": 1, "depth": 0.1}]  # 1 and 1.0 are one point
     with pytest.raises(ConfigError, match=r"'sweep.extrapolation\[0\]'.*already in the sweep grid"):

@@ -301,7 +301,26 @@ def validate(config: Mapping[str, Any] | None) -> dict[str, Any]:
     # not the bed, warned of the default bed's gap in every log
     if {"bed", "blade"} <= set(config or {}):
         check_geometry(doc)
+    if {"dynamics", "sampling"} <= set(config or {}):
+        check_ridge_bands(doc)
     return doc
+
+
+def check_ridge_bands(config: Mapping[str, Any]) -> None:
+    """Refuse ridge band edges (``dynamics.ridge_y_bands``, ``ridge_z_bands``) that do not
+    increase within the sampling volume's columns and rows. ``config`` is a validated document."""
+    s = config["sampling"]
+    sizes = {
+        "ridge_y_bands": s["bins"][1] + 2 * s["side_bins"],
+        "ridge_z_bands": s["bins"][2] + s["above_bins"],
+    }
+    for key, n in sizes.items():
+        edges = list(config["dynamics"][key])
+        if edges != sorted(edges) or any(not 0 < e < n for e in edges):
+            raise ConfigError(
+                f"config field 'dynamics.{key}': {edges} (allowed: increasing bin edges within "
+                f"1..{n - 1}, the sampling volume's {n} bins)"
+            )
 
 
 class _DuplicateKey(yaml.YAMLError):

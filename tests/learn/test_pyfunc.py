@@ -85,10 +85,11 @@ def test_mlflow_loads_the_directory_and_predicts_like_the_model(saved):
     arrays = _inputs(in_memory(1.0, 0.1, steps=30, seed=7))
     got = mlflow.pyfunc.load_model(str(path)).predict(arrays)
     assert list(got.columns) == list(TARGET_NAMES)
-    np.testing.assert_allclose(got.to_numpy(), pyfunc.predict_arrays(model, arrays), rtol=1e-6)
+    # float32 sums, in another order on some CPUs
+    np.testing.assert_allclose(got.to_numpy(), pyfunc.predict_arrays(model, arrays), rtol=1e-5)
     # the first row has no history: it repeats its own step, as the contract says
     first = pyfunc.predict_arrays(model, {k: a[:1] for k, a in arrays.items()})
-    np.testing.assert_allclose(got.to_numpy()[:1], first, rtol=1e-6)
+    np.testing.assert_allclose(got.to_numpy()[:1], first, rtol=1e-5)
 
 
 def test_a_directory_that_is_not_a_model_is_named(tmp_path):

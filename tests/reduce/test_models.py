@@ -127,7 +127,8 @@ def test_the_loops_direct_model_calls_match_the_pyfunc(ndem_run):
     force, torque = forces.predict(v[:k], rho[:k], vb[:k])
     pyfunc = mlflow.pyfunc.load_model(str(tmp / "linear"))
     frame = pyfunc.predict({"velocity": v[:k], "density": rho[:k], "blade_velocity": vb[:k]})
-    np.testing.assert_allclose(np.r_[force, torque], frame.to_numpy()[-1], rtol=1e-5, atol=1e-4)
+    # float32 sums over a few thousand features in another order (one row against a batch)
+    np.testing.assert_allclose(np.r_[force, torque], frame.to_numpy()[-1], rtol=1e-4, atol=1e-4)
 
 
 def test_the_loops_direct_field_model_calls_match_the_pyfunc(tmp_path):

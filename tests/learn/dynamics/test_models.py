@@ -24,6 +24,7 @@ def config(**dynamics):
                 "learning_rate": 3e-3,
                 "ridge_alphas": [1e-3],
                 "val_rollout": 2,
+                "ridge_z_bands": [1, 2],  # the helpers' grid has 4 rows
                 **dynamics,
             },
         }
@@ -65,7 +66,9 @@ def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, e
     assert err < tol, (kind, err)
     assert base > 0.3
     # the decay is learned, not in the advection the models start from
-    advection_only = DynamicsModel(kind, GRID, 2, 1, DT, BIN)
+    advection_only = DynamicsModel(
+        kind, GRID, 2, 1, DT, BIN, y_bands=model.y_bands, z_bands=model.z_bands
+    )
     advection_only.load_state_dict({**model.state_dict(), **_zero_net(model)})
     assert _rollout_error(advection_only, held, 4)[0] > gain * err
 
@@ -101,16 +104,18 @@ def test_wrong_shapes_are_refused_with_the_expected_ones():
         model(v[:, :1], rho[:, :1], vb)
 
 
-def test_the_ridge_stencil_is_its_design_rows_times_its_weights():
+@pytest.mark.parametrize("bands", [((), ()), ((1, 3), (1,))])
+def test_the_ridge_stencil_is_its_design_rows_times_its_weights(bands):
     # forward sums by parts what the closed-form fit's design rows (feature c·27 + 9i + 3j + k,
-    # edges replicated) times the weights give: a model fitted on design rows predicts with them
-    model = DynamicsModel("ridge", GRID, 2, 1, DT, BIN)
+    # edges replicated) times each box's weights give: a model fitted on design rows predicts
+    # with them
+    model = DynamicsModel("ridge", GRID, 2, 1, DT, BIN, y_bands=bands[0], z_bands=bands[1])
     net = model.net
     torch.manual_seed(0)
     with torch.no_grad():
         net.weight.normal_()
         net.bias.normal_()
-        x = torch.randn(2, net.weight.shape[1] // 27, *GRID)
+        x = torch.randn(2, net.weight.shape[2] // 27, *GRID)
         c = torch.randn(2, 9)
         rows = net.design(x, model.coords, c)
         b, nx, ny, nz = x.shape[0], *GRID
@@ -120,6 +125,29 @@ def test_the_ridge_stencil_is_its_design_rows_times_its_weights():
             rows[..., ch * 27 + 9 * i + 3 * j + k].numpy(),
             pad[:, ch, i : i + nx, j : j + ny, k : k + nz].reshape(b, nx, ny * nz).numpy(),
         )
-        want = torch.einsum("bxnd,xdo->bxno", rows, net.weight) + net.bias[None, :, None, :]
+        want = torch.zeros(b, nx, ny * nz, net.weight.shape[-1])
+        for k, idx in enumerate(net.box_rows(GRID)):
+            want[:, :, idx] = torch.einsum("bxnd,xdo->bxno", rows[:, :, idx], net.weight[:, k])
+            want[:, :, idx] += net.bias[None, :, k, None, :]
         got = net(x, model.coords, c).permute(0, 2, 3, 4, 1).reshape(b, nx, ny * nz, -1)
         torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-4)
+
+
+def test_a_ridge_saved_with_one_box_per_layer_loads_as_it_was():
+    # models saved before the bands: weight (X, d, outputs), bias (X, outputs)
+    torch.manual_seed(1)
+    model = DynamicsModel("ridge", GRID, 2, 1, DT, BIN)
+    with torch.no_grad():
+        model.net.weight.normal_()
+        model.net.bias.normal_()
+    state = model.state_dict()
+    state["net.weight"], state["net.bias"] = state["net.weight"][:, 0], state["net.bias"][:, 0]
+    again = DynamicsModel("ridge", GRID, 2, 1, DT, BIN)
+    again.load_state_dict(state)
+    torch.testing.assert_close(again.net.weight, model.net.weight)
+    torch.testing.assert_close(again.net.bias, model.net.bias)
+
+
+def test_ridge_band_edges_outside_the_grid_are_refused():
+    with pytest.raises(ValueError, match=r"y band edges must increase within 1\.\.4"):
+        DynamicsModel("ridge", GRID, 2, 1, DT, BIN, y_bands=(3, 5))

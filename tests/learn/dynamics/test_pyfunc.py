@@ -16,7 +16,14 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
         {
             "mlflow": {"enabled": False},
             "learn": {"validation_block": 5},
-            "dynamics": {"epochs": 1, "samples_per_epoch": 8, "history": 3, "horizon": 2},
+            "dynamics": {
+                "epochs": 1,
+                "samples_per_epoch": 8,
+                "history": 3,
+                "horizon": 2,
+                "ridge_y_bands": [2],  # the helpers' grid: 5 columns, 4 rows
+                "ridge_z_bands": [1],
+            },
         }
     )
     stores = [translating(i, rows=30) for i in range(2)]

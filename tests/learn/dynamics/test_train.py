@@ -11,7 +11,11 @@ from dozerlab.learn.dynamics.train import train_dynamics
 from .helpers import steady, translating
 
 CFG = load_config(
-    {"mlflow": {"enabled": False}, "learn": {"validation_block": 5}, "dynamics": {"val_rollout": 2}}
+    {
+        "mlflow": {"enabled": False},
+        "learn": {"validation_block": 5},
+        "dynamics": {"val_rollout": 2, "ridge_z_bands": [1, 3]},
+    }
 )
 
 

@@ -5,8 +5,8 @@ repeats the last row (the baseline). The others start from the last row carried 
 :func:`~dozerlab.learn.dynamics.advection.advect` (the frame shift and the material's own
 motion made explicit) and add a learned correction, in units of the training residuals' spread:
 ``ridge`` a closed-form linear map of each bin's 3×3×3 neighbourhood of the channels, its
-position and the blade control (a 3D convolution fitted by ridge regression; it cannot
-diverge), ``unet`` a small 3D U-Net on the same channels. Input channels per history row: the
+position and the blade control (a 3D convolution fitted by ridge regression, with weights per
+layer along x and band of heights; it cannot diverge), ``unet`` a small 3D U-Net on the same channels. Input channels per history row: the
 density and the velocity relative to that row's blade velocity; per predicted row: the advected
 density and velocity relative to the blade. Normalisation lives in buffers, so a state dict is
 the whole model.
@@ -14,6 +14,7 @@ the whole model.
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -38,15 +39,42 @@ def coordinates(grid: tuple[int, int, int]) -> torch.Tensor:
 class RidgeStencil(nn.Module):
     """Linear in each bin's 3×3×3 neighbourhood of the channels (edges replicated), its
     position and the blade control, with weights of its own for each layer of bins along x
-    (distance from the blade): the front layer, where unknown material enters, and the layers
-    at the blade face follow other rules than the middle. Fitted in closed form (:mod:`.train`).
+    (distance from the blade) and, in it, each box of the bands along y and z: the front
+    layer, where unknown material enters, and the layers at the blade face follow other rules
+    than the middle, the row straddling the cut others than the pile's top. Fitted in closed
+    form (:mod:`.train`). ``weight`` (X, boxes, d, outputs), ``bias`` (X, boxes, outputs).
     """
 
-    def __init__(self, channels: int, cond: int, outputs: int, layers: int) -> None:
+    def __init__(
+        self,
+        channels: int,
+        cond: int,
+        outputs: int,
+        grid: tuple[int, int, int],
+        y_bands: tuple[int, ...] = (),
+        z_bands: tuple[int, ...] = (),
+    ) -> None:
         super().__init__()
         d = 27 * channels + 3 + cond
-        self.weight = nn.Parameter(torch.zeros(layers, d, outputs))
-        self.bias = nn.Parameter(torch.zeros(layers, outputs))
+        self.boxes = band_boxes(grid, y_bands, z_bands)
+        self.weight = nn.Parameter(torch.zeros(grid[0], len(self.boxes), d, outputs))
+        self.bias = nn.Parameter(torch.zeros(grid[0], len(self.boxes), outputs))
+
+    def _load_from_state_dict(self, state_dict: dict[str, Any], prefix: str, *args: Any) -> None:
+        # models saved before the bands held one box: weight (X, d, outputs), bias (X, outputs)
+        for name, dim in (("weight", 3), ("bias", 2)):
+            t = state_dict.get(prefix + name)
+            if t is not None and t.dim() == dim and len(self.boxes) == 1:
+                state_dict[prefix + name] = t.unsqueeze(1)
+        super()._load_from_state_dict(state_dict, prefix, *args)
+
+    def box_rows(self, grid: tuple[int, int, int]) -> list[torch.Tensor]:
+        """For each box, the indices y·Z + z of its bins in a (Y·Z) row of :meth:`design`."""
+        nz = grid[2]
+        return [
+            (torch.arange(y0, y1)[:, None] * nz + torch.arange(z0, z1)[None, :]).flatten()
+            for y0, y1, z0, z1 in self.boxes
+        ]
 
     @staticmethod
     def stencil(x: torch.Tensor) -> torch.Tensor:
@@ -78,26 +106,50 @@ class RidgeStencil(nn.Module):
 
     def forward(self, x: torch.Tensor, coords: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         """The design rows times the weights, by parts (the same sums as ``design`` @ weight):
-        the stencil as one grouped 2D convolution over (y, z), a group per layer along x reading
-        its three-layer slab, the position's and the control's terms added without copying them
-        into every row. Stacking the stencil first and multiplying took 2.1 ms a call on the
-        default grid against 0.8 ms (``benchmarks/ridge_stencil.py``, BENCHMARKS.md)."""
+        the stencil as one grouped 2D convolution over each box's (y, z), a group per layer
+        along x reading its three-layer slab, the position's and the control's terms added
+        without copying them into every row. Stacking the stencil first and multiplying took
+        2.1 ms a call on the default grid against 0.8 ms (``benchmarks/ridge_stencil.py``,
+        BENCHMARKS.md)."""
         b, ch, nx, ny, nz = x.shape
         d, outs = 27 * ch, self.weight.shape[-1]
-        w = self.weight
-        # weight row c·27 + 9i + 3j + k → conv kernel (layer·outputs, c·3 + i, j, k)
-        kernel = w[:, :d].view(nx, ch, 3, 3, 3, outs).permute(0, 5, 1, 2, 3, 4)
-        kernel = kernel.reshape(nx * outs, ch * 3, 3, 3)
         pad = F.pad(x, (1, 1, 1, 1, 1, 1), mode="replicate")
         slabs = (
             pad.unfold(2, 3, 1).permute(0, 2, 1, 5, 3, 4).reshape(b, nx * ch * 3, ny + 2, nz + 2)
         )
-        out = F.conv2d(slabs, kernel, groups=nx).view(b, nx, outs, ny * nz).transpose(2, 3)
-        pos = coords.permute(1, 2, 3, 0).reshape(nx, ny * nz, 3)
-        out = out + torch.einsum("xnp,xpo->xno", pos, w[:, d : d + 3])[None]
-        out = out + torch.einsum("bc,xco->bxo", c, w[:, d + 3 :])[:, :, None, :]
-        out = out + self.bias[None, :, None, :]
-        return out.reshape(b, nx, ny, nz, -1).permute(0, 4, 1, 2, 3)
+        pos = coords.permute(1, 2, 3, 0)  # X, Y, Z, 3
+        out = x.new_empty(b, nx, outs, ny, nz)
+        for k, (y0, y1, z0, z1) in enumerate(self.boxes):
+            w = self.weight[:, k]
+            # weight row c·27 + 9i + 3j + k → conv kernel (layer·outputs, c·3 + i, j, k)
+            kernel = w[:, :d].view(nx, ch, 3, 3, 3, outs).permute(0, 5, 1, 2, 3, 4)
+            kernel = kernel.reshape(nx * outs, ch * 3, 3, 3)
+            part = F.conv2d(slabs[:, :, y0 : y1 + 2, z0 : z1 + 2], kernel, groups=nx)
+            part = part.view(b, nx, outs, y1 - y0, z1 - z0)
+            lin = torch.einsum("xyzp,xpo->xoyz", pos[:, y0:y1, z0:z1], w[:, d : d + 3])
+            lin = lin + self.bias[:, k, :, None, None]
+            ctl = torch.einsum("bc,xco->bxo", c, w[:, d + 3 :])[..., None, None]
+            out[:, :, :, y0:y1, z0:z1] = part + lin[None] + ctl
+        return out.permute(0, 2, 1, 3, 4)
+
+
+def band_boxes(
+    grid: tuple[int, int, int], y_bands: tuple[int, ...], z_bands: tuple[int, ...]
+) -> list[tuple[int, int, int, int]]:
+    """The (y0, y1, z0, z1) boxes of bins cut by the band edges ``y_bands`` and ``z_bands``
+    (inner edges, increasing; none: one box)."""
+    out = []
+    ys = [0, *y_bands, grid[1]]
+    zs = [0, *z_bands, grid[2]]
+    for edges, n, axis in ((ys, grid[1], "y"), (zs, grid[2], "z")):
+        if any(b <= a for a, b in itertools.pairwise(edges)) or edges[-1] != n:
+            raise ValueError(
+                f"{axis} band edges must increase within 1..{n - 1}, got {edges[1:-1]}"
+            )
+    for y0, y1 in itertools.pairwise(ys):
+        for z0, z1 in itertools.pairwise(zs):
+            out.append((y0, y1, z0, z1))
+    return out
 
 
 def _conv(cin: int, cout: int, k: int = 3, stride: int = 1) -> nn.Sequential:
@@ -161,6 +213,8 @@ class DynamicsModel(nn.Module):
         row_dt: float,
         bin_size: tuple[float, float, float],
         width: int = 8,
+        y_bands: tuple[int, ...] = (),
+        z_bands: tuple[int, ...] = (),
     ) -> None:
         super().__init__()
         if kind not in DYNAMICS_MODELS:
@@ -170,6 +224,8 @@ class DynamicsModel(nn.Module):
         self.kind = kind
         self.grid: tuple[int, int, int] = (int(grid[0]), int(grid[1]), int(grid[2]))
         self.history, self.horizon, self.width = int(history), int(horizon), int(width)
+        self.y_bands = tuple(int(e) for e in y_bands)
+        self.z_bands = tuple(int(e) for e in z_bands)
         self.row_dt = float(row_dt)
         self.bin_size: tuple[float, float, float] = (
             float(bin_size[0]),
@@ -193,7 +249,7 @@ class DynamicsModel(nn.Module):
             self.register_buffer(name, torch.full((n,), value))
         self.net: nn.Module | None = None
         if kind == "ridge":
-            self.net = RidgeStencil(channels, cond, outputs, self.grid[0])
+            self.net = RidgeStencil(channels, cond, outputs, self.grid, self.y_bands, self.z_bands)
         elif kind == "unet":
             self.net = EvolutionUNet(channels, cond, outputs, self.width)
 
@@ -207,6 +263,8 @@ class DynamicsModel(nn.Module):
             "row_dt": self.row_dt,
             "bin_size": list(self.bin_size),
             "width": self.width,
+            "y_bands": list(self.y_bands),
+            "z_bands": list(self.z_bands),
         }
 
     def base(

@@ -45,6 +45,8 @@ def build(meta: dict[str, Any], weights: str | Path) -> DynamicsModel:
         meta["row_dt"],
         tuple(meta["bin_size"]),
         meta.get("width", 8),
+        tuple(meta.get("y_bands", ())),
+        tuple(meta.get("z_bands", ())),
     )
     model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
     return model.eval()

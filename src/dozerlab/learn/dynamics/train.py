@@ -29,6 +29,7 @@ from dozerlab.learn.fitting import (
     guard,
 )
 from dozerlab.learn.train import TrainResult
+from dozerlab.runtime import DozerlabError
 
 
 def _chunks(n: int, size: int) -> list[np.ndarray]:
@@ -125,16 +126,17 @@ def fit_ridge(
     on_alpha: EpochCallback | None = None,
 ) -> tuple[list[float], list[float], int]:
     """Closed-form ridge of the normalised residuals on every ``every``-th training window, one
-    fit per layer of bins along x: density unweighted, velocity weighted by true density, one
-    solve per predicted row. Each of ``alphas`` is solved from the same normal equations and
+    fit per layer of bins along x and box of its bands: density unweighted, velocity weighted
+    by true density, one solve per predicted row. Each of ``alphas`` is solved from the same normal equations and
     the one whose ``calls``-call rollouts on ``val`` have the lowest loss is kept: a linear map
     fed its own output can amplify, which one row ahead does not show. Returns the one-step
     training and the rollout validation loss of each alpha, and the index of the kept one."""
     net, m, layers = model.net, model.horizon, model.grid[0]
     assert isinstance(net, RidgeStencil)
-    d = net.weight.shape[1]
-    eq_rho = [NormalEquations(d, m) for _ in range(layers)]
-    eq_v = [[NormalEquations(d, 3) for _ in range(m)] for _ in range(layers)]
+    d = net.weight.shape[2]
+    parts = [(i, k, rows) for i in range(layers) for k, rows in enumerate(net.box_rows(model.grid))]
+    eq_rho = [NormalEquations(d, m) for _ in parts]
+    eq_v = [[NormalEquations(d, 3) for _ in range(m)] for _ in parts]
     pick = np.arange(0, len(data), max(1, every))
     for sel in tqdm(np.array_split(pick, max(1, len(pick) // 16)), desc="ridge", unit="batch"):
         v, rho, vb, v_true, rho_true = data.get(sel, m)
@@ -144,27 +146,27 @@ def fit_ridge(
         y_rho = ((rho_true - base[1]) / model.res_std[0]).flatten(3)  # B, m, X, YZ
         y_v = ((v_true - base[0]) / model.res_std[1:]).flatten(3, 4)  # B, m, X, YZ, 3
         w_v = (rho_true / rho_scale).flatten(3)
-        for i in range(layers):
-            r = rows[:, i].reshape(-1, d)
-            eq_rho[i].add(r, y_rho[:, :, i].permute(0, 2, 1).reshape(-1, m))
+        for p, (i, _, idx) in enumerate(parts):
+            r = rows[:, i, idx].reshape(-1, d)
+            eq_rho[p].add(r, y_rho[:, :, i, idx].permute(0, 2, 1).reshape(-1, m))
             for j in range(m):
-                eq_v[i][j].add(r, y_v[:, j, i].reshape(-1, 3), w_v[:, j, i].reshape(-1))
+                eq_v[p][j].add(r, y_v[:, j, i, idx].reshape(-1, 3), w_v[:, j, i, idx].reshape(-1))
     train_loss, val_loss, states = [], [], []
-    for k, alpha in enumerate(alphas):
-        for i in range(layers):
-            w_rho, b_rho = eq_rho[i].solve(alpha)
+    for a, alpha in enumerate(alphas):
+        for p, (i, k, _) in enumerate(parts):
+            w_rho, b_rho = eq_rho[p].solve(alpha)
             for j in range(m):
-                w_vel, b_vel = eq_v[i][j].solve(alpha)
+                w_vel, b_vel = eq_v[p][j].solve(alpha)
                 f = FIELD_CHANNELS * j
-                net.weight[i, :, f] = w_rho[:, j].float()
-                net.bias[i, f] = float(b_rho[j])
-                net.weight[i, :, f + 1 : f + FIELD_CHANNELS] = w_vel.float()
-                net.bias[i, f + 1 : f + FIELD_CHANNELS] = b_vel.float()
+                net.weight[i, k, :, f] = w_rho[:, j].float()
+                net.bias[i, k, f] = float(b_rho[j])
+                net.weight[i, k, :, f + 1 : f + FIELD_CHANNELS] = w_vel.float()
+                net.bias[i, k, f + 1 : f + FIELD_CHANNELS] = b_vel.float()
         train_loss.append(_mean_loss(model, data, 1, rho_scale))
         val_loss.append(_mean_loss(model, val, calls, rho_scale))
         states.append({n: p.clone() for n, p in net.state_dict().items()})
         if on_alpha:
-            on_alpha(k, train_loss[-1], val_loss[-1])
+            on_alpha(a, train_loss[-1], val_loss[-1])
     finite = [v if math.isfinite(v) else math.inf for v in val_loss]
     best = int(np.argmin(finite))
     guard(
@@ -223,7 +225,19 @@ def train_dynamics(
     train_s, _ = split_train_validation(windows(stores, h, m * calls), fraction, block)
     _, val_s = split_train_validation(windows(stores, h, m * val_calls), fraction, block)
     train, val = WindowBatches(train_s, dev), WindowBatches(val_s, dev)
-    model = DynamicsModel(kind, stores[0].grid, h, m, row_dt, bin_size, dyn["width"]).to(dev)
+    grid = stores[0].grid
+    # the ridge's own split of each layer into boxes; the other models have none
+    ridge = kind == "ridge"
+    bands = {a: tuple(dyn[f"ridge_{a}_bands"]) if ridge else () for a in ("y", "z")}
+    for axis, n in (("y", grid[1]), ("z", grid[2])):
+        if any(not 0 < e < n for e in bands[axis]):
+            raise DozerlabError(
+                f"config field 'dynamics.ridge_{axis}_bands': {list(bands[axis])} does not fit the "
+                f"training stores' {n} bins along {axis} (allowed: edges within 1..{n - 1})"
+            )
+    model = DynamicsModel(
+        kind, grid, h, m, row_dt, bin_size, dyn["width"], bands["y"], bands["z"]
+    ).to(dev)
     result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()
     rho_scale = fit_normalization(model, train)
