@@ -2,7 +2,9 @@
 2D convolution over (y, z) per box of bands, a group per layer along x) with the default bands
 (`dynamics.ridge_z_bands`) and with one box per layer, against the stacked 3×3×3 stencil times
 the weights (the forward before the convolution) and the product of the design rows the
-closed-form fit reads with the same weights.
+closed-form fit reads with the same weights; and the whole banded model's forward (advection,
+normalisation, stencil, correction) through the module against :class:`RidgeInference`, the
+reduced loop's path.
 
     python benchmarks/ridge_stencil.py [--bins 24 18 8] [--z-bands 1 3] [--history 2] \
         [--horizon 1] [--threads 1]
@@ -18,14 +20,21 @@ import argparse
 import time
 from collections.abc import Callable
 
+import numpy as np
 import torch
 
 from dozerlab.config import load_config
-from dozerlab.learn.dynamics.models import FIELD_CHANNELS, RidgeStencil, coordinates
+from dozerlab.learn.dynamics.inference import RidgeInference
+from dozerlab.learn.dynamics.models import (
+    FIELD_CHANNELS,
+    DynamicsModel,
+    RidgeStencil,
+    coordinates,
+)
 from dozerlab.runtime import set_threads
 
 
-def best_ms(f: Callable[[], torch.Tensor], repeats: int = 50, rounds: int = 5) -> float:
+def best_ms(f: Callable[[], object], repeats: int = 50, rounds: int = 5) -> float:
     """The best over ``rounds`` of the mean ms per call of ``repeats`` calls."""
     f()
     best = float("inf")
@@ -105,6 +114,44 @@ def main() -> None:
         f"{conv:.2f} ms; stacked stencil x weights {stacked:.2f} ms ({stacked / conv:.1f}x one "
         f"box's forward); design rows x weights {design:.2f} ms ({design / conv:.1f}x); largest "
         f"difference {diff:.2g} (outputs up to {float(ref.abs().max()):.3g})"
+    )
+
+    model_vs_inference(grid, args.history, args.horizon, tuple(args.z_bands))
+
+
+def model_vs_inference(
+    grid: tuple[int, int, int], history: int, horizon: int, z_bands: tuple[int, ...]
+) -> None:
+    """Print the ms per call of a banded ridge model's forward through the module and through
+    :class:`RidgeInference` on one window of fields like a bed's (densities 0 or up to
+    1800 kg/m³, grains moving at up to ~1 m/s), and their largest difference."""
+    model = DynamicsModel(
+        "ridge", grid, history, horizon, 0.01, (0.05, 0.05, 0.05), z_bands=z_bands
+    )
+    gen = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        model.net.weight.normal_(std=0.02, generator=gen)
+        model.net.bias.normal_(std=0.1, generator=gen)
+        model.chan_std.uniform_(0.5, 2.0, generator=gen)
+        model.res_std.copy_(torch.tensor([100.0, 0.05, 0.04, 0.06]))
+    model.eval()
+    rho = 1800.0 * torch.rand(history, *grid, generator=gen)
+    rho[rho < 400.0] = 0.0
+    v = 0.5 * torch.randn(history, *grid, 3, generator=gen) * (rho > 0).unsqueeze(-1)
+    vb = torch.tensor([[1.0, 0.0, -0.1]] * (history + horizon))
+    fast = RidgeInference(model)
+    with torch.no_grad():
+        ref = model(v[None], rho[None], vb[None])
+        module = best_ms(lambda: model(v[None], rho[None], vb[None]))
+    arrays = (v.numpy(), rho.numpy(), vb.numpy())
+    got = fast.predict(*arrays)
+    inference = best_ms(lambda: fast.predict(*arrays))
+    dv = float(np.abs(got[0] - ref[0][0].numpy()).max())
+    drho = float(np.abs(got[1] - ref[1][0].numpy()).max())
+    print(
+        f"the whole model (z bands {list(z_bands)}, history {history}, horizon {horizon}): "
+        f"module forward {module:.2f} ms, RidgeInference {inference:.2f} ms "
+        f"({module / inference:.1f}x); largest difference {dv:.2g} m/s, {drho:.2g} kg/m³"
     )
 
 

@@ -232,8 +232,19 @@ def _settle(
             flow[p, a] = vs[q, a] if carried else v[p, a]
 
 
-def _in_box(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    return np.all((x >= lower) & (x <= upper), axis=1)
+@njit(cache=True)
+def _in_box(x, lower, upper):  # pragma: no cover - compiled
+    """(N,) bool: which rows of ``x`` (N, 3) lie in the box [lower, upper] (3,); one pass (the
+    NumPy expression's temporaries cost 0.2 ms a call on the default bed)."""
+    n = x.shape[0]
+    out = np.empty(n, np.bool_)
+    for p in range(n):
+        out[p] = (
+            lower[0] <= x[p, 0] <= upper[0]
+            and lower[1] <= x[p, 1] <= upper[1]
+            and lower[2] <= x[p, 2] <= upper[2]
+        )
+    return out
 
 
 class ReducedState:
