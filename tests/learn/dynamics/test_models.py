@@ -67,7 +67,7 @@ def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, e
     assert base > 0.3
     # the decay is learned, not in the advection the models start from
     advection_only = DynamicsModel(
-        kind, GRID, 2, 1, DT, BIN, y_bands=model.y_bands, z_bands=model.z_bands
+        kind, GRID, 2, model.horizon, DT, BIN, y_bands=model.y_bands, z_bands=model.z_bands
     )
     advection_only.load_state_dict({**model.state_dict(), **_zero_net(model)})
     assert _rollout_error(advection_only, held, 4)[0] > gain * err

@@ -218,7 +218,8 @@ def train_dynamics(
     dyn, learn = config["dynamics"], config["learn"]
     seed, dev, on_epoch, progress = fit_start(config, options)
     row_dt, bin_size = frame_of(stores)
-    h, m = dyn["history"], dyn["horizon"]
+    ridge = kind == "ridge"
+    h, m = dyn["history"], dyn["ridge_horizon" if ridge else "horizon"]
     calls, val_calls = (dyn["unroll"] if kind == "unet" else 1), dyn["val_rollout"]
     fraction, block = learn["validation_fraction"], learn["validation_block"]
     # the same blocks either way: windows differ only at each store's end
@@ -227,7 +228,6 @@ def train_dynamics(
     train, val = WindowBatches(train_s, dev), WindowBatches(val_s, dev)
     grid = stores[0].grid
     # the ridge's own split of each layer into boxes; the other models have none
-    ridge = kind == "ridge"
     bands = {a: tuple(dyn[f"ridge_{a}_bands"]) if ridge else () for a in ("y", "z")}
     for axis, n in (("y", grid[1]), ("z", grid[2])):
         if any(not 0 < e < n for e in bands[axis]):

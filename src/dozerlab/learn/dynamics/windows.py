@@ -28,7 +28,8 @@ def windows(stores: list[StoreData], history: int, horizon: int) -> Samples:
         if s.density.shape[0] < history + horizon:
             raise DozerlabError(
                 f"{s.source or s.name}: {s.density.shape[0]} rows is fewer than history + horizon = "
-                f"{history + horizon} (dynamics.history, dynamics.horizon)"
+                f"{history + horizon} (dynamics.history; the rows a call predicts, dynamics.horizon or "
+                "ridge_horizon, times the calls a training or validation rollout makes)"
             )
     samples = concat(stores, history)
     ends = np.cumsum([s.density.shape[0] for s in stores])
