@@ -5,13 +5,15 @@ against opened by the job itself (as before), side by side.
         [--rules RULE ...] [--against OLD]
 
 DIR is a folder where that config's sweep has run (its ``results/`` are read, never written).
-The script takes one command line of each of the rules ``simulate``, ``validate``,
-``validate_dynamics`` and ``reduce`` from Snakemake itself (``snakemake -n -p --forcerun RULE``),
+The script takes one command line of each of the rules ``simulate``, ``validate`` and
+``validate_dynamics`` from Snakemake itself (``snakemake -n -p --forcerun RULE``),
 points their outputs into a temporary folder and runs each ``--repeat`` times, alternately with a
 spool (``DOZERLAB_MLFLOW_SPOOL`` and a parent run id: the run is written to disk, no MLflow) and
 without (the job imports MLflow, opens a temporary SQLite store and logs there). It prints each
-job's wall time per mode and, for simulate and reduce, the overhead: the wall time less the
-stepping loop (the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures. With
+job's wall time per mode and, for simulate, the overhead: the wall time less the stepping loop
+(the store's ``wall_time_s``), what issue 14's ≤ 3 s target measures. (Rule ``reduce`` runs a
+model's held-out points in one job, each point's share of it in ``results/reduced/{model}.json``,
+``job_wall_s``.) With
 ``--against OLD`` each run is followed by the same run on the checkout OLD's code
 (``PYTHONPATH=OLD/src``; ``--modes live`` for one from before the spool), side by side.
 """
@@ -30,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-RULES = ("simulate", "validate", "validate_dynamics", "reduce")
+RULES = ("simulate", "validate", "validate_dynamics")
 #: The options naming a job's outputs, pointed into the temporary folder.
 OUTPUTS = ("--out", "--state", "--plots")
 
@@ -129,7 +131,7 @@ def main() -> None:
             for _ in range(args.repeat):
                 for mode, extra in modes.items():
                     walls[mode].append(run_once(cmd, {**base, **env, **extra}, args.workdir, tmp))
-                    if rule in ("simulate", "reduce"):
+                    if rule == "simulate":
                         loops[mode].append(stepping_loop_s(tmp))
             for mode in modes:
                 line = f"{rule:18s} {mode:14s} wall {statistics.median(walls[mode]):5.2f} s"

@@ -483,9 +483,12 @@ def expected_job_runs(cfg: dict[str, Any]) -> dict[str, int]:
 
 def expected_jobs(cfg: dict[str, Any]) -> dict[str, int]:
     """The jobs of :func:`expected_job_runs`' rules a sweep of ``cfg`` runs: one run each, but a
-    ``reduce_training_points`` job records a run per training point."""
+    ``reduce`` job records a run per held-out point and a ``reduce_training_points`` job one per
+    training point."""
     jobs = expected_job_runs(cfg)
-    training = len(P.by_role(P.sweep_points(cfg), "train"))
+    points = P.sweep_points(cfg)
+    training = len(P.by_role(points, "train"))
+    jobs["reduce"] //= max(len(points) - training, 1)
     jobs["reduce_training_points"] //= max(training, 1)
     return jobs
 

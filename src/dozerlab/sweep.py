@@ -158,7 +158,7 @@ PATHS = {
     "twin_benchmark": f"benchmarks/twin/{{scenario}}/{POINT_STEM}.tsv",
     "reduced": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.zarr",
     "reduced_state": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.npz",
-    "reduce_benchmark": f"benchmarks/reduce/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.tsv",
+    "reduce_benchmark": "benchmarks/reduce/{dynamics_model}/held_out.tsv",
     "reduce_training_benchmark": "benchmarks/reduce/{dynamics_model}/training_points.tsv",
     "reduced_comparison": "reduced/{dynamics_model}.json",
     "reduced_comparison_plots": "reduced/{dynamics_model}/compare",
@@ -264,11 +264,6 @@ def reduced_path(
     return _path(kind, results, point, dynamics_model=dynamics_model)
 
 
-def reduce_benchmark_path(results: str | Path, dynamics_model: str, point: SweepPoint) -> Path:
-    """Snakemake's benchmark record (wall time, memory) of the point's reduce job."""
-    return _path("reduce_benchmark", results, point, dynamics_model=dynamics_model)
-
-
 def _per_model(kind: str, what: str) -> Callable[[str | Path, str], Path]:
     """The path function ``(results, model) -> Path`` of a result kept per model (``what`` it
     is): the template ``PATHS[kind]`` with its one wildcard (``{model}`` or ``{dynamics_model}``)
@@ -287,6 +282,10 @@ reduced_comparison_path = _per_model("reduced_comparison", "the reduced runs mea
 loop_force_model_path = _per_model(
     "loop_force_model",
     "the force model trained on that dynamics model's loop fields (an MLflow pyfunc directory)",
+)
+reduce_benchmark_path = _per_model(
+    "reduce_benchmark",
+    "Snakemake's benchmark record of that dynamics model's runs of the held-out points (one job)",
 )
 reduce_training_benchmark_path = _per_model(
     "reduce_training_benchmark",

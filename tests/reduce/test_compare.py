@@ -17,6 +17,7 @@ from dozerlab.reduce.compare import (
     gaussian_smooth,
     height_accuracy,
     job_seconds,
+    job_shares,
     largest_overlap,
     low_pass,
     outside_box,
@@ -99,6 +100,17 @@ def test_job_seconds_read_snakemakes_benchmark(tmp_path):
     tsv.write_text("s\th:m:s\tmax_rss\n12.5\t0:00:12\t100.0\n")
     assert job_seconds(tsv) == 12.5
     assert job_seconds(None) is None and job_seconds(tmp_path / "none.tsv") is None
+
+
+def test_each_point_of_a_job_takes_its_loop_and_an_equal_part_of_the_rest():
+    # a 12 s job of loops of 2, 3 and 4 s: the 3 s left (start-up, models, writing) split three ways
+    assert job_shares(12.0, [2.0, 3.0, 4.0]) == pytest.approx([3.0, 4.0, 5.0])
+    assert sum(job_shares(12.0, [2.0, 3.0, 4.0])) == pytest.approx(12.0)  # type: ignore[arg-type]
+    assert job_shares(7.0, [4.0]) == [7.0]  # one point: the whole job
+    assert job_shares(None, [2.0, 3.0]) == [None, None]
+    assert job_shares(12.0, [2.0, None]) == [None, None]
+    with pytest.raises(DozerlabError, match="shorter than its 2 loops"):
+        job_shares(4.0, [2.0, 3.0])  # the record of another job
 
 
 TARGETS = {

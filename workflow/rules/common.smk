@@ -184,11 +184,11 @@ def train_dynamics_priority(wildcards):
 
 
 def reduce_force_model(wildcards):
-    """The force model of a reduce job. With reduced.force_fields loop, the one trained on this
-    dynamics model's loop fields, but for replay (its fields are NDEM's) and on the training
-    points (whose reduced runs that model learns from); else results/models/{force_model}."""
+    """The force model of a dynamics model's held-out runs (rule reduce). With
+    reduced.force_fields loop, the one trained on this dynamics model's loop fields, but for
+    replay (its fields are NDEM's); else results/models/{force_model}."""
     r = config["reduced"]
-    if r["force_fields"] == "ndem" or wildcards.dynamics_model == "replay" or is_training_run(wildcards):
+    if r["force_fields"] == "ndem" or wildcards.dynamics_model == "replay":
         return str(P.model_path(RESULTS, r["force_model"]))
     return str(P.loop_force_model_path(RESULTS, wildcards.dynamics_model))
 
@@ -201,10 +201,10 @@ def loop_fields_of(dynamics_model):
     return [str(P.reduced_path(RESULTS, dynamics_model, p)) for p in TRAINING_POINTS]
 
 
-def training_loop_runs(ext):
-    """The reduced stores (zarr) or final states (npz) of the training points, {dynamics_model}
-    left a wildcard (rule reduce_training_points)."""
-    return [str(P.reduced_path(RESULTS, "{dynamics_model}", p, ext)) for p in TRAINING_POINTS]
+def model_runs(points, ext):
+    """The reduced stores (zarr) or final states (npz) of ``points``, {dynamics_model} left a
+    wildcard (one job's outputs: rules reduce and reduce_training_points)."""
+    return [str(P.reduced_path(RESULTS, "{dynamics_model}", p, ext)) for p in points]
 
 
 def reduced_of(dynamics_model):

@@ -1,42 +1,42 @@
 # The live reduced simulation (docs/models.md) on the held-out points, measured against their NDEM runs.
 
 
+# One job a dynamics model runs every held-out point: the start-up (imports, models, compiled
+# kernels, about 3 s) is paid once, and each point's job speed-up counts its share of it
+# (reduce.compare.job_shares).
 rule reduce:
     input:
-        canonical,
-        bed=P.pattern("bed"),
-        trajectory=P.pattern("trajectory"),
-        # the NDEM run of the point: replay's fields, and the run the reduced one is aligned with
-        ndem=P.pattern("field"),
+        beds=[str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in HELD_OUT})],
+        trajectories=[str(P.trajectory_path(RESULTS, p)) for p in HELD_OUT],
+        # the points' NDEM runs: replay's fields, and the runs the reduced ones are aligned with
+        ndem=[str(P.field_path(RESULTS, p)) for p in HELD_OUT],
         force_model=reduce_force_model,
         dynamics=dynamics_input,
     output:
-        store=directory(P.pattern("reduced")),
-        state=P.pattern("reduced_state"),
+        stores=[directory(s) for s in model_runs(HELD_OUT, "zarr")],
+        states=model_runs(HELD_OUT, "npz"),
     benchmark:
         P.pattern("reduce_benchmark")
     log:
-        "logs/reduce/{dynamics_model}/{scenario}/speed~{speed}_depth~{depth}.log",
-    # the NDEM run's threads: the speed-up compares the two at the same thread count
+        "logs/reduce/{dynamics_model}.log",
+    # the NDEM runs' threads: the speed-up compares the two at the same thread count
     resources:
         **cluster.job_resources(config, "reduce"),
     threads: config["threads"]["simulate"]
     params:
         cfg=lambda wc: reduce_config_json(),
+        results=lambda wc: RESULTS,
         dynamics=lambda wc, input: input.dynamics or "replay",
+        points=" ".join(f"{p.scenario}/{p.name}" for p in HELD_OUT),
     shell:
-        "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce --bed {input.bed:q} --trajectory {input.trajectory:q}"
-        " --dynamics {params.dynamics:q} --ndem {input.ndem:q} --force-model {input.force_model:q}"
-        " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads}"
-        " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth} > {log:q} 2>&1"
+        "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce-points --results {params.results:q}"
+        " --dynamics-model {wildcards.dynamics_model} --dynamics {params.dynamics:q}"
+        " --force-model {input.force_model:q} --points {params.points} --config {params.cfg:q}"
+        " --rule reduce --threads {threads} > {log:q} 2>&1"
 
 
 # The runs the loop's force model learns from (reduced.force_fields: loop): one learned dynamics
-# model's loop on every training point, in one process (a one-point reduce job spends 2.3 s of its
-# 7 outside its loop). These paths are this rule's, not reduce's, whichever job asks for them.
-ruleorder: reduce_training_points > reduce
-
-
+# model's loop on every training point, in one process, as rule reduce's.
 rule reduce_training_points:
     input:
         beds=[str(P.bed_path(RESULTS, s)) for s in sorted({p.scenario for p in TRAINING_POINTS})],
@@ -45,8 +45,8 @@ rule reduce_training_points:
         force_model=str(P.model_path(RESULTS, config["reduced"]["force_model"])),
         dynamics=dynamics_input,
     output:
-        stores=[directory(s) for s in training_loop_runs("zarr")],
-        states=training_loop_runs("npz"),
+        stores=[directory(s) for s in model_runs(TRAINING_POINTS, "zarr")],
+        states=model_runs(TRAINING_POINTS, "npz"),
     benchmark:
         P.pattern("reduce_training_benchmark")
     log:
@@ -65,7 +65,7 @@ rule reduce_training_points:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab reduce-points --results {params.results:q}"
         " --dynamics-model {wildcards.dynamics_model} --dynamics {input.dynamics:q}"
         " --force-model {input.force_model:q} --points {params.points} --config {params.cfg:q}"
-        " --threads {threads} > {log:q} 2>&1"
+        " --rule reduce_training_points --threads {threads} > {log:q} 2>&1"
 
 
 # The loop's force model (reduced.force_fields: loop): the force model fitted to the fields this

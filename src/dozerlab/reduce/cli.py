@@ -60,6 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         required=True,
         help="the points, each as SCENARIO/speed~V_depth~D (the stem of its result paths)",
     )
+    p.add_argument(
+        "--rule",
+        choices=("reduce", "reduce_training_points"),
+        default="reduce",
+        help="the workflow rule the runs are tagged with in MLflow (default reduce)",
+    )
     add_config(p)
     add_threads(p, help="numba/torch threads (default 1)")
     p.set_defaults(func=_reduce_points)
@@ -135,7 +141,13 @@ def _reduce_points(args: argparse.Namespace) -> int:
     from dozerlab.reduce.jobs import reduce_points_job
 
     runs = reduce_points_job(
-        args.results, args.dynamics_model, points, config, args.dynamics, args.force_model
+        args.results,
+        args.dynamics_model,
+        points,
+        config,
+        args.dynamics,
+        args.force_model,
+        args.rule,
     )
     for text, metrics in zip(args.points, runs, strict=True):
         print(

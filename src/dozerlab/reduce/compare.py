@@ -27,7 +27,8 @@ Per point (both runs start from the same settled bed and follow the same traject
   counts as "through"), grains outside the bed's box;
 - **speed-up**: NDEM's stepping-loop wall time over the reduced loop's (``wall_time_s``: same
   trajectory, so the same simulated time) and, when the Snakemake benchmark records exist, the
-  whole jobs' wall times;
+  whole jobs' wall times: NDEM's job of the point against the point's share of the reduced job
+  that ran it with the model's other points (:func:`job_shares`);
 - **twin and skill**: with the point's twin (NDEM from the bed with every grain moved by a
   micrometre, ``reduced.twin``) the twin is measured against NDEM the same way, over the same
   rows (``twin_<figure>``), and each figure's skill is the run's over the twin's
@@ -237,6 +238,23 @@ def job_seconds(benchmark: str | Path | None) -> float | None:
     return float(rows[0]["s"]) if rows else None
 
 
+def job_shares(job_s: float | None, loop_s: list[float | None]) -> list[float | None]:
+    """Each point's share (s) of one job that ran several reduced loops: its own loop's wall
+    time ``loop_s[i]`` plus an equal part of the rest of the job ``job_s`` (start-up, imports,
+    models, kernels, each run's reading and writing). All None without the job's record or a
+    loop's time; a job shorter than its loops' sum is a record of another job: refused."""
+    if job_s is None or not loop_s or any(t is None for t in loop_s):
+        return [None] * len(loop_s)
+    loops = [float(t) for t in loop_s if t is not None]
+    rest = job_s - sum(loops)
+    if rest < 0:
+        raise DozerlabError(
+            f"the reduce job's benchmark record ({job_s:.2f} s) is shorter than its "
+            f"{len(loops)} loops ({sum(loops):.2f} s): it is not the record of these runs"
+        )
+    return [t + rest / len(loops) for t in loops]
+
+
 #: The figures measured against NDEM, for a reduced run and for the twin alike: an accuracy
 #: (1 is NDEM's result exactly, higher is better) or an error (0 is NDEM's, lower is better).
 #: Each has a skill: the run's figure over the twin's (NDEM's own reproducibility).
@@ -406,10 +424,13 @@ def compare_point(
     config: Mapping[str, Any],
     *,
     ndem_benchmark: str | Path | None = None,
-    reduced_benchmark: str | Path | None = None,
+    reduced_job_s: float | None = None,
     twin: tuple[str | Path, str | Path] | None = None,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The metrics of one point (module doc) and the series its plots draw.
+
+    ``ndem_benchmark``: the Snakemake benchmark record of the point's NDEM job;
+    ``reduced_job_s``: the reduced run's share of its job, s (:func:`job_shares`).
 
     ``twin``: the point's twin NDEM run (its store and final state), measured against NDEM over
     the same rows: ``twin_<figure>`` and ``<figure>_skill`` (:func:`skills`) join the metrics.
@@ -434,7 +455,7 @@ def compare_point(
     figures, run = against_ndem(ref, rd, end_r, tail)
     final_bodies = _bodies_at(bed, config, rd["blade_position"].values[-1])
     wall_n, wall_r = ref.wall_time_s, rd.attrs.get("wall_time_s")
-    job_n, job_r = job_seconds(ndem_benchmark), job_seconds(reduced_benchmark)
+    job_n, job_r = job_seconds(ndem_benchmark), reduced_job_s
     metrics: dict[str, Any] = {
         "scenario": rd.attrs["scenario"],
         "speed": rd.attrs["speed"],

@@ -95,16 +95,18 @@ def reduce_points_job(
     config: dict[str, Any],
     dynamics: str | Path,
     force_model: str | Path,
+    rule: str = "reduce",
 ) -> list[dict[str, float]]:
-    """Run several sweep points with one pair of models in one process (rule
-    ``reduce_training_points``: a dynamics model's runs of the training points, which its loop's
-    force model learns from). A one-point reduce job spends 2.3 s outside its loop (imports, models,
-    compiled kernels) for 4–5 s of loop on the default sweep's points; here that is paid once.
+    """Run several sweep points with one pair of models in one process: the workflow's rules
+    ``reduce`` (a model's runs of the held-out points) and ``reduce_training_points`` (its runs
+    of the training points, which its loop's force model learns from). A one-point reduce job
+    spends about 3 s outside its loop (imports, models, compiled kernels) for 3–5 s of loop on the
+    default sweep's points; here that is paid once.
 
     Inputs and outputs are the workflow's paths under ``results``: each point's bed, trajectory
     and NDEM store (replay's fields), its reduced store and state as
     ``results/reduced/{dynamics_model}/…`` (:func:`dozerlab.sweep.reduced_path`). Each point is
-    its own MLflow run (tag ``rule`` reduce_training_points). Returns the points' metrics.
+    its own MLflow run (tag ``rule``: ``rule``). Returns the points' metrics.
     Every point's outputs are checked before the first run; a failure leaves none of them.
     """
     from dozerlab.fields.sampling import SamplingGrid
@@ -141,9 +143,7 @@ def reduce_points_job(
                 point.speed,
                 point.depth,
             )
-            metrics.append(
-                _tracked_reduce("reduce_training_points", target, config, field_model, forces)
-            )
+            metrics.append(_tracked_reduce(rule, target, config, field_model, forces))
         return metrics
 
 
@@ -246,7 +246,13 @@ def _compare(
     from dozerlab import tracking
     from dozerlab.fields.store import open_store
     from dozerlab.reduce import plots as rp
-    from dozerlab.reduce.compare import compare_point, targets_met, transfer_gap
+    from dozerlab.reduce.compare import (
+        compare_point,
+        job_seconds,
+        job_shares,
+        targets_met,
+        transfer_gap,
+    )
 
     held_out = [p for p in P.sweep_points(config) if p.role != "train"]
     if not held_out:
@@ -254,6 +260,14 @@ def _compare(
     targets = config["reduced"]["targets"]
     twins = bool(config["reduced"]["twin"]["enabled"])
     entries: list[dict[str, Any]] = []
+    # one reduce job ran every held-out point (rule reduce): each point's share of it
+    shares = job_shares(
+        job_seconds(P.reduce_benchmark_path(results, dynamics_model)),
+        [
+            open_store(P.reduced_path(results, dynamics_model, p)).attrs.get("wall_time_s")
+            for p in held_out
+        ],
+    )
     with tracking.tracked_run(
         tracking.run_name("compare", dynamics_model),
         rule="compare_reduced",
@@ -263,7 +277,7 @@ def _compare(
     ) as run:
         with atomic_output(plots, COMPARISON_PLOTS) as tmp_plots:
             tmp_plots.mkdir(parents=True)
-            for point in held_out:
+            for point, share in zip(held_out, shares, strict=True):
                 ndem_store = P.field_path(results, point)
                 reduced_store = P.reduced_path(results, dynamics_model, point)
                 twin = (P.twin_path(results, point), P.twin_path(results, point, "npz"))
@@ -275,7 +289,7 @@ def _compare(
                     P.reduced_path(results, dynamics_model, point, "npz"),
                     config,
                     ndem_benchmark=P.simulate_benchmark_path(results, point),
-                    reduced_benchmark=P.reduce_benchmark_path(results, dynamics_model, point),
+                    reduced_job_s=share,
                     twin=twin if twins else None,
                 )
                 stem = f"{point.scenario}_{point.name}"
