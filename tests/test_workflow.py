@@ -142,15 +142,18 @@ def test_evolution_models_predict_through_mlflow_and_are_validated(quick):
     import mlflow
 
     ds = xr.open_zarr(P.field_path(quick / "results", POINTS[0]))
-    h, m = CFG["dynamics"]["history"], CFG["dynamics"]["horizon"]
-    inputs = {
-        "velocity": ds["velocity"].values[None, :h],
-        "density": ds["density"].values[None, :h],
-        "blade_velocity": ds["blade_velocity"].values[None, : h + m],
-    }
+    h = CFG["dynamics"]["history"]
     for model in DYNAMICS:
         loaded = mlflow.pyfunc.load_model(str(P.dynamics_model_path(quick / "results", model)))
         assert loaded.metadata.metadata["history"] == h
+        # the ridge predicts its own rows a call (dynamics.ridge_horizon), the others horizon
+        m = CFG["dynamics"]["ridge_horizon" if model == "ridge" else "horizon"]
+        assert loaded.metadata.metadata["horizon"] == m
+        inputs = {
+            "velocity": ds["velocity"].values[None, :h],
+            "density": ds["density"].values[None, :h],
+            "blade_velocity": ds["blade_velocity"].values[None, : h + m],
+        }
         out = loaded.predict(inputs)
         assert out["velocity"].shape == (1, m, *ds["density"].shape[1:], 3)
         assert np.isfinite(out["density"]).all() and (out["density"] >= 0).all()
@@ -543,7 +546,7 @@ def test_the_targets_reach_only_the_comparison_and_the_report(tmp_path):
     before, after = commands["before"], commands["after"]
     assert before.keys() == after.keys()
     assert {c for c in before if before[c] != after[c]} == {"compare-reduced", "report"}
-    assert {"reduce", "reduce-points", "train", "simulate"} <= before.keys()
+    assert {"reduce-points", "train", "simulate"} <= before.keys()
 
 
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):
@@ -629,6 +632,12 @@ def test_transfer_points_on_the_users_terrain_are_simulated_validated_and_reduce
         "'results/fields/site/speed~1.0_depth~0.06.zarr'" in v
         for v in validations
     )
-    reduced = re.findall(r"dozerlab reduce .*--out 'results/reduced/(\w+)/(\w+)/", out)
-    assert {s for _, s in reduced} >= {"ramp", "site"}
-    assert len([m for m, s in reduced if s in ("ramp", "site")]) == 2 * len(REDUCED)
+    # rule reduce: one job a model, every held-out point (the transfer points among them)
+    reduced = re.findall(
+        r"dozerlab reduce-points .*--dynamics-model (\w+) .*--points ([^-]*)--.*--rule reduce ", out
+    )
+    assert sorted(m for m, _ in reduced) == sorted(REDUCED)
+    assert all(
+        {"ramp/speed~1.0_depth~0.06", "site/speed~1.0_depth~0.06"} <= set(p.split())
+        for _, p in reduced
+    )
