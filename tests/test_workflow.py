@@ -477,8 +477,10 @@ def test_a_path_spelled_otherwise_gets_the_canonical_spelling_or_the_reason(
 
 def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
     """force_fields loop: a learned dynamics model's held-out runs take the force model of its
-    loop's fields, trained on its runs of the training points; ndem: results/models for all."""
+    loop's fields, trained on its runs of the training points with reduced.force_history rows
+    of history; ndem: results/models for all."""
     quick = yaml.safe_load(QUICK.read_text())
+    quick["reduced"]["force_history"] = 2
     for fields, loop_jobs in (("loop", 1), ("ndem", 0)):
         quick["reduced"]["force_fields"] = fields
         cfg = tmp_path / f"{fields}.yaml"
@@ -487,6 +489,13 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
         assert done.returncode == 0, done.stderr[-3000:]
         jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
         assert jobs.count("train_loop_force") == loop_jobs
+        histories = [
+            json.loads(c)["learn"]["history"]
+            for c in re.findall(
+                r"dozerlab train .*?--loop-fields .*?--config '(\{.*?\})'", done.stdout
+            )
+        ]
+        assert histories == [2] * loop_jobs and quick["learn"]["history"] == 3
         assert jobs.count("reduce") == 2  # one a model, every held-out point
         # ridge's runs of the 4 training points, in one job, with the NDEM-fitted force model
         assert jobs.count("reduce_training_points") == loop_jobs

@@ -98,6 +98,14 @@ def reduce_config_json():
     return config_json(*sections, fields={"reduced": LOOP_FIELDS})
 
 
+def loop_force_config_json():
+    """What train_loop_force reads: seed, mlflow and learn, with learn.history the loop's
+    force model's own (reduced.force_history)."""
+    doc = json.loads(config_json("seed", "learn", "mlflow"))
+    doc["learn"]["history"] = config["reduced"]["force_history"]
+    return json.dumps(doc, sort_keys=True, separators=(",", ":"))
+
+
 def canonical(wildcards):
     """Refuse non-canonical spellings (speed~1, speed~1.00): they would duplicate a run."""
     P.check_canonical("speed", wildcards.speed)

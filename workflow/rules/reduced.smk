@@ -84,7 +84,7 @@ rule train_loop_force:
     resources:
         **cluster.job_resources(config, "train_loop_force"),
     params:
-        cfg=lambda wc: config_json("seed", "learn", "mlflow"),
+        cfg=lambda wc: loop_force_config_json(),
         model=config["reduced"]["force_model"],
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab train --model {params.model} --train {input.ndem:q}"
