@@ -8,7 +8,13 @@ import pytest
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce import projection
 from dozerlab.reduce.compare import body_penetration
-from dozerlab.reduce.projection import METHODS, Bodies, largest_movable_overlap, project
+from dozerlab.reduce.projection import (
+    METHODS,
+    Bodies,
+    largest_movable_overlap,
+    project,
+    spheres_near,
+)
 
 
 def bodies(*, box: bool = True) -> Bodies:
@@ -196,3 +202,14 @@ def test_a_contact_closed_beyond_the_margin_is_found_and_resolved(method):
     gaps = [np.linalg.norm(x[1] - x[0]) - 0.04, np.linalg.norm(x[2] - x[1]) - 0.04]
     assert min(gaps) > -1e-3 * 0.02
     assert stats.max_overlap == pytest.approx(max(0.0, -min(gaps) / 0.02), abs=1e-9)
+
+
+def test_spheres_near_lists_those_within_the_margin_of_a_body():
+    # the box's -x face is at x = 0.9: surfaces 0.05 and 0.02 away, one inside, one 0.3 away
+    x = np.array([[0.75, 0.0, 0.5], [0.78, 0.0, 0.5], [0.95, 0.0, 0.5], [0.5, 0.0, 0.5]])
+    r = np.full(4, 0.1)
+    box = bodies()
+    only_box = Bodies(*(a[1:] for a in (box.kind, box.centre, box.rotation, box.half, box.normal)))
+    np.testing.assert_array_equal(spheres_near(x, r, only_box, 0.03), [1, 2])
+    np.testing.assert_array_equal(spheres_near(x, r, only_box, 0.06), [0, 1, 2])
+    np.testing.assert_array_equal(spheres_near(x, r, box, 0.0), [2])  # none on the ground

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from dozerlab.fields.sampling import SamplingGrid
@@ -9,6 +11,8 @@ from dozerlab.fields.store import open_store
 from dozerlab.reduce.compare import compare_point
 from dozerlab.reduce.models import ForcePredictor, ReplayFieldModel
 from dozerlab.reduce.run import reduce_run
+from dozerlab.scenarios.bed import Bed
+from dozerlab.scenarios.trajectory import Trajectory
 
 
 class _Still:
@@ -128,3 +132,47 @@ def test_other_field_models_read_the_flow_they_gave_not_the_projected_motion(nde
         )
     moved = stored["velocity"].values[warm:, 1:, :, 1:]
     assert np.abs(moved - model.u).max() > 0.05  # the projection did change the grains' motion
+
+
+def test_a_blade_clear_of_the_bed_leaves_the_warm_up_rows_the_bed_as_it_lies(ndem_run):
+    tmp, config = ndem_run  # the planned blade starts 10 cm before the bed
+    _, stored = _uniform_run(tmp, config, "clear")
+    warm = int(stored.attrs["warmup_rows"])
+    assert stored.attrs["warmup_stepped"] is False
+    bed, grid = Bed.load(tmp / "bed.npz"), SamplingGrid.from_config(config)
+    for k in range(warm):
+        tip = stored["blade_position"].values[k]
+        v, rho = grid.sample(bed.positions, bed.velocities, bed.radii, bed.masses, tip)
+        np.testing.assert_allclose(stored["density"].values[k], rho, rtol=1e-6)
+        np.testing.assert_allclose(stored["velocity"].values[k], v, atol=1e-7)
+        assert not stored["force"].values[k].any()
+    ndem = open_store(tmp / "ndem.zarr")  # NDEM's own run agrees: nothing moved yet
+    np.testing.assert_allclose(
+        stored["density"].values[:warm], ndem["density"].values[:warm], atol=1.0
+    )
+
+
+def test_a_blade_that_starts_at_the_bed_is_stepped_by_ndem_through_the_warm_up(ndem_run):
+    tmp, config = ndem_run
+    traj = Trajectory.load_csv(tmp / "speed~0.5_depth~0.06.csv")
+    n = int(np.argmax(traj.position[:, 0] > -0.003))  # the blade's face 3 mm from the grains
+    inside = dataclasses.replace(
+        traj,
+        time=np.arange(traj.time.size - n) * traj.dt,
+        position=traj.position[n:],
+        velocity=traj.velocity[n:],
+    )
+    inside.save_csv(tmp / "inside.csv")
+    reduce_run(
+        tmp / "bed.npz",
+        tmp / "inside.csv",
+        config,
+        _Uniform(SamplingGrid.from_config(config).bins),
+        ForcePredictor(tmp / "linear"),
+        tmp / "inside.zarr",
+        tmp / "inside.npz",
+    )
+    stored = open_store(tmp / "inside.zarr")
+    warm = int(stored.attrs["warmup_rows"])
+    assert stored.attrs["warmup_stepped"] is True
+    assert np.abs(stored["force"].values[:warm, 0]).max() > 0  # NDEM's blade pushed the grains

@@ -491,6 +491,24 @@ def _round(
     return listed, ProjectionStats(listed, float(depth), pi.size, bi.size, sweeps, tests)
 
 
+def spheres_near(x: np.ndarray, radii: np.ndarray, bodies: Bodies, margin: float) -> np.ndarray:
+    """Indices (K,) ascending of the spheres of ``x`` (N, 3) m, ``radii`` (N,) m whose surface
+    lies within ``margin`` (m) of any of ``bodies``."""
+    n = x.shape[0]
+    si, _ = _body_candidates(
+        np.ascontiguousarray(x, dtype=np.float64),
+        np.ascontiguousarray(radii, dtype=np.float64),
+        np.ones(n),
+        float(margin),
+        bodies.kind,
+        bodies.centre,
+        bodies.rotation,
+        bodies.half,
+        bodies.normal,
+    )
+    return np.unique(si)
+
+
 def largest_movable_overlap(x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray) -> float:
     """Largest overlap over the smaller radius of the pairs of ``x`` (N, 3) m with a movable
     sphere (inv_mass > 0), by a fresh contact search (0 when none overlap). Pairs of two

@@ -45,7 +45,8 @@ k-1 to row k, with the blade tip at p_k:
    with the flow (BENCHMARKS.md).
 
 The first H rows (the models' history) come from a short NDEM warm-up of the same bed along the
-same trajectory; its time counts in ``wall_time_s``. Only the grains near the blade or moving
+same trajectory; its time counts in ``wall_time_s``. A blade that reaches no grain before the
+first predicted row leaves NDEM nothing to move: the rows are then the bed sampled as it lies. Only the grains near the blade or moving
 are touched by the costly phases; the one pass over every grain per step is a cell lookup
 (selection), tens of µs for 10⁴ grains.
 """
