@@ -14,7 +14,8 @@ side by side on one machine and thread count: the full NDEM solve, NDEM with
 ``solver.active_zone.enabled``, and the reduced loop replaying the full solve's own fields
 (``replay``: the loop's cost with perfect fields, the evolution model's inference apart). Printed
 per bed: grains, wall time per simulated second of each (the reduced loop's with and without its
-NDEM warm-up row) and the speed-ups; the figure plots the wall time per simulated second
+warm-up rows: NDEM's steps when the blade reaches a grain in them, else the bed sampled as it
+lies) and the speed-ups; the figure plots the wall time per simulated second
 against the bed's area. Not a test: the times depend on the machine and its load.
 """
 
@@ -173,7 +174,7 @@ def plot(rows: list[dict[str, Any]], area: float, out: Path, title: str) -> None
     for key, label in (
         ("full", "NDEM, full solve"),
         ("zone", "NDEM, active zone"),
-        ("reduced", "reduced loop (replay), NDEM warm-up included"),
+        ("reduced", "reduced loop (replay), warm-up included"),
         ("reduced_steps", "reduced loop, its steps only"),
     ):
         ax.plot(x, [r[key] for r in rows], "o-", label=label)
