@@ -68,7 +68,7 @@ class Design:
 @dataclass(frozen=True)
 class HeldOutLoop:
     """A held-out point's replay loop: its reduced store (``loop``: the loop's fields; the force
-    rows before ``warmup`` are NDEM's warm-up), NDEM's force rows (T, 3) N aligned with it, the
+    rows before ``warmup`` are the warm-up's: NDEM's, or none on a blade clear of the bed), NDEM's force rows (T, 3) N aligned with it, the
     rows' period (s), and the twin's ``force_lp_rel_rmse`` over the same rows (NaN without one)."""
 
     loop: StoreData
@@ -109,7 +109,7 @@ def held_out_loop(
 
 def loop_force_error(model: ForceModel, run: HeldOutLoop) -> float:
     """``force_lp_rel_rmse`` of the reduced run ``run`` had its loop read its force off its
-    fields with ``model``: the warm-up rows keep NDEM's force, as the loop's do."""
+    fields with ``model``: the warm-up rows keep the stored force, as the loop's do."""
     from dozerlab.learn.pyfunc import predict_arrays
     from dozerlab.reduce.compare import force_lp_rel_rmse
 

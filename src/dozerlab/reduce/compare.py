@@ -9,7 +9,7 @@ Per point (both runs start from the same settled bed and follow the same traject
   σ/4 cells smoothed by a Gaussian of σ = one mean grain diameter: the scale on which two NDEM
   runs from beds a micrometre apart agree (the grain scale is their chaos);
 - **force**: relative RMSE of the pushing force (x) and of |F| over the rows the reduced loop
-  made (the NDEM warm-up rows excluded), RMSE / RMS of NDEM's; the pushing force low-passed
+  made (the warm-up rows excluded), RMSE / RMS of NDEM's; the pushing force low-passed
   over 0.1 s (a centred moving mean, :data:`FORCE_WINDOW`), its relative RMSE, and the relative
   error of its mean over those rows;
 - **fields**: relative L2 of the velocity (mass-weighted with NDEM's density, world frame,

@@ -33,7 +33,7 @@ def _title(m: Mapping) -> str:
 def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
     """Pushing force (x) and |F| of both runs over time, given in N and drawn in kN, with the
     pushing force low-passed over ``force_window`` s (dashed) of both and, where the series hold
-    it, of NDEM's twin; the NDEM warm-up shaded."""
+    it, of NDEM's twin; the warm-up rows (the evolution model's history) shaded."""
     from dozerlab.reduce.compare import low_pass
 
     fig = Figure(figsize=(9, 4.5), layout="constrained")
@@ -58,7 +58,7 @@ def plot_force(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | P
             label=f"{label} force x over {window:g} s",
         )
     if warm:
-        ax.axvspan(t[0], t[warm - 1], color="0.85", label="NDEM warm-up")
+        ax.axvspan(t[0], t[warm - 1], color="0.85", label="warm-up (the model's history)")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("force on the blade (kN); faint: |F|")
     ax.grid(alpha=0.3)
@@ -151,7 +151,7 @@ def animate_pair(
     def show(s: int) -> None:
         for view, name in zip(views, ("NDEM", "reduced"), strict=True):
             view.show(s)
-            phase = " (NDEM warm-up)" if name == "reduced" and rows[s] < warm else ""
+            phase = " (warm-up)" if name == "reduced" and rows[s] < warm else ""
             view.ax.set_title(
                 f"{name}{phase}, t = {float(ndem['time'].values[s]):.2f} s", fontsize=9
             )
