@@ -8,8 +8,8 @@ beds of 1x, 2x and 4x the default area, same blade and path, in one run.
 The larger beds are the point's settled bed repeated across its width (copies side by side, each
 shifted by the bed's width, so the terrain under the blade's path is the same); a seam is not
 settled (a wall's contacts become the next copy's grains, and NDEM's first step sets the grains
-along it moving, which the reduced loop then moves too), so the larger beds overstate how both
-grow. The blade runs the first ``--steps`` steps of the point's trajectory on each. Per bed,
+along it moving; the reduced loop too, when its warm-up is NDEM's), so the larger beds overstate
+how NDEM grows. The blade runs the first ``--steps`` steps of the point's trajectory on each. Per bed,
 side by side on one machine and thread count: the full NDEM solve, NDEM with
 ``solver.active_zone.enabled``, and the reduced loop replaying the full solve's own fields
 (``replay``: the loop's cost with perfect fields, the evolution model's inference apart). Printed
