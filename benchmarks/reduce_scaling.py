@@ -147,7 +147,7 @@ def main() -> None:
                 "zone": zone / sim_s,
                 "reduced": r["wall_time_s"] / sim_s,
                 # the reduced steps alone, per simulated second of them
-                "reduced_steps": steps_s / (r["reduced_steps"] * every * traj.dt),
+                "reduced_steps": steps_s / (r["reduced_rows"] * every * traj.dt),
             }
             rows.append(row)
             print(

@@ -88,10 +88,14 @@ class _Uniform:
         return v, density[-1:].copy()
 
 
+def _rows_a_step(config, n):
+    return {**config, "reduced": {**config["reduced"], "step_rows": n}}
+
+
 def _uniform_run(tmp, config, name, model_name="uniform"):
     model = _Uniform(SamplingGrid.from_config(config).bins)
     model.name = model_name
-    reduce_run(
+    metrics = reduce_run(
         tmp / "bed.npz",
         tmp / "speed~0.5_depth~0.06.csv",
         config,
@@ -100,12 +104,13 @@ def _uniform_run(tmp, config, name, model_name="uniform"):
         tmp / f"{name}.zarr",
         tmp / f"{name}.npz",
     )
+    model.metrics = metrics
     return model, open_store(tmp / f"{name}.zarr")
 
 
 def test_the_ridge_model_reads_its_own_velocity_and_the_sampled_density(ndem_run):
     tmp, config = ndem_run  # reduced.predicted_history: [ridge] by default
-    model, stored = _uniform_run(tmp, config, "own", "ridge")
+    model, stored = _uniform_run(tmp, _rows_a_step(config, 1), "own", "ridge")
     warm = int(stored.attrs["warmup_rows"])
     assert len(model.seen) > 3
     for k, (seen, rho) in enumerate(
@@ -119,7 +124,7 @@ def test_the_ridge_model_reads_its_own_velocity_and_the_sampled_density(ndem_run
 
 def test_other_field_models_read_the_flow_they_gave_not_the_projected_motion(ndem_run):
     tmp, config = ndem_run
-    model, stored = _uniform_run(tmp, config, "flow")
+    model, stored = _uniform_run(tmp, _rows_a_step(config, 1), "flow")
     warm = int(stored.attrs["warmup_rows"])
     # every grain touching a bin off the volume's floor and blade face was carried by the field
     for k, seen in enumerate(model.seen[1:], start=warm):
@@ -132,6 +137,35 @@ def test_other_field_models_read_the_flow_they_gave_not_the_projected_motion(nde
         )
     moved = stored["velocity"].values[warm:, 1:, :, 1:]
     assert np.abs(moved - model.u).max() > 0.05  # the projection did change the grains' motion
+
+
+def test_two_rows_a_step_move_the_grains_once_and_fill_the_row_between_from_either_side(ndem_run):
+    tmp, config = ndem_run
+    model, stored = _uniform_run(tmp, _rows_a_step(config, 2), "two")
+    warm, rows = int(stored.attrs["warmup_rows"]), int(stored.sizes["time"])
+    assert rows - warm >= 6
+    assert model.metrics["reduced_rows"] == rows - warm == len(model.seen)  # a call a row
+    assert model.metrics["reduced_steps"] == -(-(rows - warm) // 2)
+    v, rho = stored["velocity"].values, stored["density"].values
+    for k in range(warm, rows - 1, 2):  # the first row of each step: the grains skip it
+        np.testing.assert_allclose(rho[k], 0.5 * (rho[k - 1] + rho[k + 1]), rtol=1e-5, atol=1e-3)
+        np.testing.assert_allclose(v[k], 0.5 * (v[k - 1] + v[k + 1]), rtol=1e-5, atol=1e-6)
+        # until the step's end the model read its own prediction of the row (here: the last
+        # row's density), then the filled row
+        np.testing.assert_array_equal(
+            model.seen_density[k - warm + 1], model.seen_density[k - warm]
+        )
+        if k + 2 < rows:
+            np.testing.assert_array_equal(model.seen_density[k - warm + 2], rho[k + 1])
+    one_model, _ = _uniform_run(tmp, _rows_a_step(config, 1), "one")
+    assert one_model.metrics["reduced_steps"] == rows - warm
+    # the same uniform field moves the grains as far in half the steps
+    a, b = (Bed.load(tmp / f"{n}.npz").positions for n in ("two", "one"))
+    moved = np.linalg.norm(b - Bed.load(tmp / "bed.npz").positions, axis=1) > 0.01
+    assert moved.sum() > 20
+    assert np.median(np.linalg.norm(a - b, axis=1)[moved]) < 0.5 * np.median(
+        np.linalg.norm(b - Bed.load(tmp / "bed.npz").positions, axis=1)[moved]
+    )
 
 
 def test_a_blade_clear_of_the_bed_leaves_the_warm_up_rows_the_bed_as_it_lies(ndem_run):

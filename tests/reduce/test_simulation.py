@@ -223,3 +223,24 @@ def test_the_bed_at_rest_below_the_volume_holds_where_a_resting_grain_beside_it_
     assert state.x[3, 0] > ahead[0] + 1e-3  # pushed ahead by the grain the field carried
     for a, b in ((0, 2), (1, 3)):
         assert np.linalg.norm(state.x[a] - state.x[b]) > 0.04 * (1 - 0.05 / 2) - 1e-9
+
+
+@pytest.mark.parametrize(("limit", "freed"), [(10.0, False), (0.1, True)])
+def test_a_grain_the_sweeps_leave_too_deep_goes_back_to_where_it_started(limit, freed):
+    # the field drives a grain from above half a radius into one at rest below the volume
+    # (held like the ground); with no sweeps (iterations 0) the overlap stays, as in a cage
+    # of held grains the sweeps cannot open; overlap_limit 10: no second try
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))  # z from 0.1 m up
+    tip = np.array([0.0, 0.0, 0.1])
+    x = np.array([[0.2, 0.0, 0.02], [0.2, 0.0, 0.11]])
+    field = np.broadcast_to(np.array([0.0, 0.0, -6.0]), (*grid.bins, 3)).copy()
+    settings = ReducedSettings(iterations=0, overlap_limit=limit)
+    state = _state(x, np.zeros_like(x), grid, settings)
+    stats = state.step(field, np.full(grid.bins, 1500.0), tip, 0.01)
+    worst = largest_overlap(state.x, state.r)
+    assert worst == pytest.approx(stats.max_overlap, abs=1e-9)
+    if freed:
+        assert worst == 0.0
+        np.testing.assert_array_equal(state.x, x)
+    else:
+        assert worst == pytest.approx(0.5)

@@ -12,4 +12,5 @@ LOOP_FIELDS = (
     "support_angle",
     "divergence_overlap",
     "predicted_history",
+    "step_rows",
 )

@@ -116,7 +116,8 @@ def _reduce(args: argparse.Namespace) -> int:
         **labels(args),
     )
     print(
-        f"reduced run: {metrics['reduced_steps']:.0f} steps in {metrics['wall_time_s']:.2f} s, "
+        f"reduced run: {metrics['reduced_rows']:.0f} rows in {metrics['reduced_steps']:.0f} steps, "
+        f"{metrics['wall_time_s']:.2f} s, "
         f"largest overlap {metrics['max_overlap']:.3f} of a radius -> {args.out}"
     )
     return 0
@@ -151,8 +152,8 @@ def _reduce_points(args: argparse.Namespace) -> int:
     )
     for text, metrics in zip(args.points, runs, strict=True):
         print(
-            f"reduced run {text}: {metrics['reduced_steps']:.0f} steps in "
-            f"{metrics['wall_time_s']:.2f} s, largest overlap {metrics['max_overlap']:.3f} of a radius"
+            f"reduced run {text}: {metrics['reduced_rows']:.0f} rows in "
+            f"{metrics['reduced_steps']:.0f} steps, {metrics['wall_time_s']:.2f} s, largest overlap {metrics['max_overlap']:.3f} of a radius"
         )
     return 0
 

@@ -509,6 +509,21 @@ def spheres_near(x: np.ndarray, radii: np.ndarray, bodies: Bodies, margin: float
     return np.unique(si)
 
 
+def overlapping(x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) bool: the spheres of ``x`` (N, 3) m, ``radii`` (N,) m in a pair with a movable
+    sphere (``inv_mass`` (N,) > 0) that overlaps by more than ``limit`` times the smaller
+    radius (a fresh contact search): both of the pair."""
+    pi, pj = candidate_pairs(x, radii, 0.0)
+    gap = radii[pi] + radii[pj] - np.linalg.norm(x[pi] - x[pj], axis=1)
+    deep = (gap > limit * np.minimum(radii[pi], radii[pj])) & (
+        (inv_mass[pi] > 0.0) | (inv_mass[pj] > 0.0)
+    )
+    out = np.zeros(x.shape[0], bool)
+    out[pi[deep]] = True
+    out[pj[deep]] = True
+    return out
+
+
 def largest_movable_overlap(x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray) -> float:
     """Largest overlap over the smaller radius of the pairs of ``x`` (N, 3) m with a movable
     sphere (inv_mass > 0), by a fresh contact search (0 when none overlap). Pairs of two

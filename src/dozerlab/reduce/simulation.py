@@ -1,11 +1,13 @@
 """The reduced stepping loop (docs/models.md): fields → learned models → particles moved and projected.
 
-One reduced step spans one store row (``sampling.every`` solver steps, h = every·dt). From row
-k-1 to row k, with the blade tip at p_k:
+One reduced step spans ``reduced.step_rows`` store rows (of ``sampling.every`` solver steps
+each, h = step_rows·every·dt; the loop in :mod:`dozerlab.reduce.run`). From row j to row k,
+with the blade tip at p_k:
 
-1. the field model gives the velocity field of row k (it predicts m rows per call; the loop asks
-   again every m rows), from the fields sampled from the reduced state over the last H rows and
-   the blade velocity of those rows and the next m (the blade's control is known ahead);
+1. the field model gives the velocity field of each row j+1..k (it predicts m rows per call;
+   the loop asks again every m rows), from the fields sampled from the reduced state over the
+   last H rows and the blade velocity of those rows and the next m (the blade's control is
+   known ahead); the grains move by the mean of those rows' fields (:meth:`ReducedState.step`);
 2. **advection**: a grain whose centre lies in the sampling volume at p_k, or within
    ``reduced.advect_margin`` bins ahead of, beside or above it, takes the field's velocity,
    trilinearly interpolated (mass-weighted; beyond the volume the nearest bins' value) to its
@@ -28,10 +30,14 @@ k-1 to row k, with the blade tip at p_k:
    projected set was pushed into one outside it and that overlap stayed, unseen by the step's
    statistic (0.11–0.18 r in the final states of the default sweep, 0.06–0.07 reported); the
    statistic covers every pair with a grain the step could move; a grain's velocity is then its
-   displacement over h; a grain outside the volume that the projection pushed upwards, within
+   displacement over h; a grain the projection still leaves deeper than
+   ``reduced.projection.overlap_limit`` goes back to where it started the step and the held
+   grains it overlaps yield, for one more projection (a cage of held grains); a grain outside
+   the volume that the projection pushed upwards, within
    ``reduced.support_angle`` of vertical, has landed and comes to rest (sticky, like a grain on
    a high-friction bed); pushed up a steeper slope, it slides on;
-4. the fields are sampled at p_k with the NDEM algorithm (``SamplingGrid``); the force model
+4. the fields are sampled at p_k with the NDEM algorithm (``SamplingGrid``), and the rows
+   inside the step take the fields between the sampled rows either side; the force model
    predicts the blade force and torque from them, for every row in one batched call after the
    loop, since no grain reads the force. The field model's history is the sampled density
    and, for a model named in ``reduced.predicted_history`` (``ridge`` by default), the
@@ -68,6 +74,7 @@ from dozerlab.reduce.projection import (
     Bodies,
     ProjectionStats,
     largest_movable_overlap,
+    overlapping,
     project,
 )
 from dozerlab.runtime import DozerlabError
@@ -91,7 +98,7 @@ PHASES = (
 class ReducedSettings:
     """The ``reduced`` config section's loop settings (units in the schema)."""
 
-    iterations: int = 48
+    iterations: int = 96
     method: str = "gauss_seidel"
     relaxation: float = 1.5
     slop: float = 0.05
@@ -103,6 +110,8 @@ class ReducedSettings:
     divergence_overlap: float = 0.5
     #: the evolution models (by name) that read their own predicted velocity as history
     predicted_history: tuple[str, ...] = ("ridge",)
+    #: store rows one reduced step spans (the grains move, are projected and sampled once)
+    step_rows: int = 2
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ReducedSettings:
@@ -122,15 +131,16 @@ class ReducedSettings:
             support_angle=float(r["support_angle"]),
             divergence_overlap=float(r["divergence_overlap"]),
             predicted_history=tuple(str(m) for m in r["predicted_history"]),
+            step_rows=int(r["step_rows"]),
         )
 
 
 @dataclass
 class PhaseTimes:
-    """Wall time per phase (s) and the steps they cover."""
+    """Wall time per phase (s) and the store rows they cover."""
 
     seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(PHASES, 0.0))
-    steps: int = 0
+    rows: int = 0
 
     def add(self, phase: str, t0: float) -> float:
         """Add the time since ``t0`` to ``phase``; returns now."""
@@ -138,9 +148,10 @@ class PhaseTimes:
         self.seconds[phase] += now - t0
         return now
 
-    def per_step_ms(self) -> dict[str, float]:
-        """Mean ms per reduced step of each phase but the warm-up."""
-        n = max(self.steps, 1)
+    def per_row_ms(self) -> dict[str, float]:
+        """Mean ms per store row of each phase but the warm-up (NDEM's rows take the same
+        simulated time: the figures compare with its wall time per row)."""
+        n = max(self.rows, 1)
         return {k: 1e3 * v / n for k, v in self.seconds.items() if k != "warmup"}
 
 
@@ -286,9 +297,10 @@ class ReducedState:
         self.settings = settings
         self.extent = np.array(grid.bins) * np.array(grid.bin_size)
         rmax = float(self.r.max()) if self.r.size else 0.0
-        # Selection cells: one grain diameter plus the largest step a grain takes, so a grain
-        # within contact reach of a mover is in the mover's cell or a neighbour.
-        self.cell = 2.0 * rmax + 0.5 * rmax
+        # Selection cells: one grain diameter plus the largest step a grain takes (half a
+        # radius a row), so a grain within contact reach of a mover is in the mover's cell or a
+        # neighbour.
+        self.cell = 2.0 * rmax + 0.5 * rmax * settings.step_rows
         self.lo = np.asarray(domain_lower, dtype=np.float64) - self.cell
         hi = np.asarray(domain_upper, dtype=np.float64) + self.cell
         self.dims = np.maximum(np.ceil((hi - self.lo) / self.cell).astype(np.int64), 1)
@@ -402,18 +414,39 @@ class ReducedState:
         # surface: 1.6-2.0 thousand with the learned fields, 0.35 thousand in NDEM)
         resting = ~(ins | bal | near_blade[sel] | self.moving[sel])
         inv_m[resting & (x0[:, 2] < lower[2])] = 0.0
-        stats = project(
-            xs,
-            self.r[sel],
-            inv_m,
-            self.bodies,
-            iterations=s.iterations,
-            method=s.method,
-            relaxation=s.relaxation,
-            slop=s.slop,
-            tolerance=s.tolerance,
-            overlap_limit=s.overlap_limit,
-        )
+        radii = self.r[sel]
+
+        def projected() -> ProjectionStats:
+            return project(
+                xs,
+                radii,
+                inv_m,
+                self.bodies,
+                iterations=s.iterations,
+                method=s.method,
+                relaxation=s.relaxation,
+                slop=s.slop,
+                tolerance=s.tolerance,
+                overlap_limit=s.overlap_limit,
+            )
+
+        stats = projected()
+        if stats.max_overlap > s.overlap_limit:
+            # A grain caged by grains that hold still (the bed below the volume) cannot be
+            # pushed out through a gap narrower than itself: it goes back to where it started
+            # the step, the cage yields with its own mass, and the step is projected again (two
+            # rows a step left one grain behind the blade of hill 1.5/0.06 at 0.26 radius with
+            # the ridge and one at 0.18 for 30 steps with the unet; BENCHMARKS.md)
+            deep = overlapping(xs, radii, inv_m, s.overlap_limit)
+            stuck = deep & (inv_m > 0.0)
+            xs[stuck], vs[stuck] = x0[stuck], 0.0
+            held = deep & movable & (inv_m == 0.0)
+            inv_m[held] = 1.0 / self.m[sel[held]]
+            again = projected()
+            again.sweeps += stats.sweeps
+            again.tests += stats.tests
+            again.body_depth = max(again.body_depth, stats.body_depth)
+            stats = again
         if not np.isfinite(xs).all():
             raise DozerlabError("reduced step produced non-finite positions")
         if self._beyond_ring(xs - x0, ins | bal | near_blade[sel] | self.moving[sel], movable):
