@@ -9,7 +9,7 @@ Runs NDEM (``fields.jobs.simulate``) on the point's bed and trajectory under ``-
 the reduced loop with each dynamics model (``replay``: the new NDEM run's own fields;
 otherwise ``results/dynamics/{model}``) and the config's force model, into a temporary folder,
 and prints for each: the stepping loop's wall time and its speed-up over NDEM's (per simulated
-second: the same trajectory), the mean time per reduced step of each phase (selection,
+second: the same trajectory), the mean time per store row of each phase (selection,
 advection, projection, sampling, field and force inference, store writes) and of the NDEM
 warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy figures
 (and on the scales NDEM reproduces: the surface smoothed at one grain diameter, the pushing
@@ -163,7 +163,7 @@ def main() -> None:
             print(
                 f"{name}: loop {r['wall_time_s']:.2f} s ({m['wall_time_s'] / r['wall_time_s']:.1f}x"
                 f" NDEM's), job {job:.2f} s (models loaded before); NDEM warm-up "
-                f"{r['warmup_s']:.2f} s; ms per step: {phases}; grains moved per step "
+                f"{r['warmup_s']:.2f} s; ms per row: {phases}; grains moved per step "
                 f"{r['active_grains_mean']:.0f}; projection sweeps per step "
                 f"{r.get('projection_sweeps_mean', float('nan')):.1f}; largest overlap {r['max_overlap']:.3f} r"
             )

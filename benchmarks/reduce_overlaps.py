@@ -9,7 +9,7 @@ and NDEM store under ``--results`` (read only; outputs in a temporary folder) an
 step, searches the whole bed for overlapping pairs. Prints the loop's largest overlap, the whole
 bed's, the steps with a pair above ``--bound`` radii, and those pairs split by which of their
 grains the step moved (both, one, none: an overlap left from an earlier step), then the final
-state's largest overlap. The whole-bed search is outside the loop's phases: its ms per step are
+state's largest overlap. The whole-bed search is outside the loop's phases: its ms per row are
 the loop's own.
 """
 
@@ -98,7 +98,7 @@ def main() -> None:
         f"{int(a[:, 3].sum())}, one {int(a[:, 4].sum())}, none {int(a[:, 5].sum())}"
     )
     phases = ", ".join(f"{k[3:]} {v:.2f}" for k, v in r.items() if k.startswith("ms_"))
-    print(f"ms per step: {phases}; projection sweeps per step {r['projection_sweeps_mean']:.1f}")
+    print(f"ms per row: {phases}; projection sweeps per step {r['projection_sweeps_mean']:.1f}")
 
 
 if __name__ == "__main__":
