@@ -213,3 +213,20 @@ def test_spheres_near_lists_those_within_the_margin_of_a_body():
     np.testing.assert_array_equal(spheres_near(x, r, only_box, 0.03), [1, 2])
     np.testing.assert_array_equal(spheres_near(x, r, only_box, 0.06), [0, 1, 2])
     np.testing.assert_array_equal(spheres_near(x, r, box, 0.0), [2])  # none on the ground
+
+
+def test_the_search_around_moved_spheres_finds_what_a_search_of_every_pair_finds():
+    rng = np.random.default_rng(11)
+    x = rng.uniform([0.0, -0.3, 0.0], [0.6, 0.3, 0.3], size=(400, 3))
+    r = rng.uniform(0.02, 0.03, 400)
+    inv_m = (rng.uniform(size=400) < 0.7).astype(float)
+    which = rng.choice(400, 40, replace=False)
+    i, j = np.triu_indices(400, 1)
+    around = np.isin(i, which) | np.isin(j, which)
+    movable = (inv_m[i] > 0) | (inv_m[j] > 0)
+    gap = r[i] + r[j] - np.linalg.norm(x[i] - x[j], axis=1)
+    keep = around & movable & (gap > 0)
+    want = float((gap[keep] / np.minimum(r[i], r[j])[keep]).max())
+    assert want > 0
+    assert projection._largest_overlap_around(x, r, inv_m, which) == pytest.approx(want, rel=1e-12)
+    assert projection._largest_overlap_around(x, r, inv_m, which[:0]) == 0.0

@@ -408,12 +408,14 @@ def project(
         total.pairs, total.body_contacts = st.pairs, st.body_contacts
         total.sweeps += st.sweeps
         total.tests += st.tests
-        # The list holds every pair closer than r_i + r_j + 2·margin when it was made: while no
-        # sphere has moved more than the margin since (sweeps and push-out), it holds every
-        # contact and its largest overlap is every pair's. Otherwise a contact may have closed
-        # unlisted: search afresh, and project again if one did.
-        if _largest_step(x, start) > m:
-            fresh = largest_movable_overlap(x, r0, w0)
+        # The list holds every pair closer than r_i + r_j + 2·margin when it was made: a pair
+        # left out of it can have closed since (sweeps and push-out) only if one of its spheres
+        # moved more than the margin. Search afresh around those, and project again if a
+        # contact closed unlisted (searching around every sphere cost 19 % of the projection
+        # at 1.5 m/s, where some sphere moved that far in nearly every step; BENCHMARKS.md).
+        far = _moved_beyond(x, start, m)
+        if far.size:
+            fresh = _largest_overlap_around(x, r0, w0, far)
             if fresh > total.max_overlap:
                 total.max_overlap = fresh
                 continue
@@ -423,13 +425,51 @@ def project(
 
 
 @njit(cache=True)
-def _largest_step(x, start):  # pragma: no cover - compiled
-    """Largest distance (m) between rows of ``x`` and ``start`` (N, 3)."""
-    worst = 0.0
+def _moved_beyond(x, start, distance):  # pragma: no cover - compiled
+    """Indices (K,) of the rows of ``x`` (N, 3) more than ``distance`` (m) from ``start``."""
+    d2 = distance * distance
+    out = np.empty(x.shape[0], np.int64)
+    k = 0
     for i in range(x.shape[0]):
-        d0, d1, d2 = x[i, 0] - start[i, 0], x[i, 1] - start[i, 1], x[i, 2] - start[i, 2]
-        worst = max(worst, d0 * d0 + d1 * d1 + d2 * d2)
-    return np.sqrt(worst)
+        d0, d1, d2i = x[i, 0] - start[i, 0], x[i, 1] - start[i, 1], x[i, 2] - start[i, 2]
+        if d0 * d0 + d1 * d1 + d2i * d2i > d2:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+@njit(cache=True)
+def _overlap_around(x, radii, inv_m, which, lo, cell, dims, order, start):  # pragma: no cover
+    """Largest overlap over the smaller radius of the pairs of a sphere of ``which`` with any
+    other, at least one of the two movable; ``order``/``start`` the spheres by cell."""
+    worst = 0.0
+    for a in which:
+        ca = np.empty(3, np.int64)
+        for d in range(3):
+            ca[d] = min(max(int((x[a, d] - lo[d]) / cell), 0), dims[d] - 1)
+        for ix in range(max(ca[0] - 1, 0), min(ca[0] + 2, dims[0])):
+            for iy in range(max(ca[1] - 1, 0), min(ca[1] + 2, dims[1])):
+                for iz in range(max(ca[2] - 1, 0), min(ca[2] + 2, dims[2])):
+                    c = (ix * dims[1] + iy) * dims[2] + iz
+                    for t in range(start[c], start[c + 1]):
+                        b = order[t]
+                        if b == a or (inv_m[a] <= 0.0 and inv_m[b] <= 0.0):
+                            continue
+                        g, _, _, _ = _pair_gap(x, radii, a, b)
+                        if g > 0.0:
+                            worst = max(worst, g / min(radii[a], radii[b]))
+    return worst
+
+
+def _largest_overlap_around(
+    x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray, which: np.ndarray
+) -> float:
+    """:func:`largest_movable_overlap` over the pairs with a sphere of ``which`` (K,) indices
+    into ``x`` (N, 3) m, by a fresh search around those spheres alone (0 when none overlap)."""
+    lo, cell, dims = broadphase.grid_layout(x, float(radii.max()), max(8 * x.shape[0], 4096))
+    cells = broadphase.cell_indices(x, lo, cell, dims)
+    order, start = broadphase.counting_sort(cells, int(np.prod(dims)))
+    return float(_overlap_around(x, radii, inv_mass, which, lo, cell, dims, order, start))
 
 
 #: Projection rounds at most (each a contact search, sweeps and push-out): a round more runs
