@@ -165,11 +165,38 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     assert pi.size > 200 and bi.size > 10
     args = (bi, bb, b.kind, b.centre, b.rotation, b.half, b.normal, 30, True, 1.0, 0.05, 0.0)
     full, restricted = x.copy(), x.copy()
-    sweeps_full, tests_full = projection._iterate(full, r, w, pi, pj, *args, False)
-    sweeps_r, tests_r = projection._iterate(restricted, r, w, pi, pj, *args, True)
+    sweeps_full, tests_full = projection._iterate(full, r, w, pi, pj, *args, False, 0.0)
+    sweeps_r, tests_r = projection._iterate(restricted, r, w, pi, pj, *args, True, 0.0)
     np.testing.assert_allclose(restricted, full, rtol=0, atol=1e-12)
     assert sweeps_r == sweeps_full
     assert tests_r < 0.8 * tests_full
+
+
+def test_ripples_below_the_quiet_share_wake_no_contacts_and_the_pile_still_converges():
+    # a settled pile pushed 1 cm at one end, over-relaxed as the loop sweeps: with the quiet
+    # share, the sweeps' tiny ripples stop sending whole neighbourhoods to be tested again
+    x, r, w = pile(600, seed=3)
+    project(x, r, w, bodies(), iterations=500, slop=0.05)
+    x[x[:, 0] < 0.3, 0] += 0.01
+    perm, lo, dims = cell_sorted(x, 0.2)
+    x, r, w = np.ascontiguousarray(x[perm]), r[perm], w[perm]
+    b = bodies()
+    pi, pj = projection._pairs_sorted(x, r + 0.02, w, lo, 0.2, dims)
+    bi, bb = projection._body_candidates(
+        x, r, w, 0.1, b.kind, b.centre, b.rotation, b.half, b.normal
+    )
+    tolerance = 0.02
+    args = (bi, bb, b.kind, b.centre, b.rotation, b.half, b.normal, 96, True, 1.5, 0.05, tolerance)
+    every, quiet = x.copy(), x.copy()
+    _, tests_every = projection._iterate(every, r, w, pi, pj, *args, True, 0.0)
+    _, tests_quiet = projection._iterate(
+        quiet, r, w, pi, pj, *args, True, projection.QUIET * tolerance
+    )
+    assert tests_quiet < 0.75 * tests_every
+    left_every = projection._largest_overlap(every, r, w, pi, pj)
+    left_quiet = projection._largest_overlap(quiet, r, w, pi, pj)
+    assert left_quiet < 0.05 + 2 * tolerance
+    assert left_quiet == pytest.approx(left_every, abs=tolerance)
 
 
 def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles():
