@@ -12,8 +12,8 @@ NDEM fields) and its loop force model (``results/reduced/{model}/force_model``, 
 ``results/models/{force_model}`` where the model has none), into a temporary folder, and
 compares it with the point's NDEM run and its twin (``compare_point``). Prints per point the
 loop's wall time, its speed-up over the stored NDEM run's ``wall_time_s`` per simulated second,
-ms a row projecting, sweeps a step, grains moved a step, the largest overlap, and the
-smoothed-surface and low-passed force skills; then per variant the loops' sum and the skills.
+ms a row projecting, sweeps and contact tests a step, grains moved a step, the largest overlap,
+and the smoothed-surface and low-passed force skills; then per variant the loops' sum and the skills.
 The variants run alternately point by point, so machine noise falls on all of them alike. Reads
 ``--results`` only. The force model was fitted to the loop fields of the workflow's settings:
 under other settings its force skill is a lower bound of what retraining would give.
@@ -113,7 +113,9 @@ def main() -> None:
                 print(
                     f"{name:>12} {pt.scenario} {pt.speed}/{pt.depth}: loop {r['wall_time_s']:.2f} s "
                     f"({speedup:.1f}x NDEM), projection {r['ms_projection']:.2f} ms a row, "
-                    f"{r['projection_sweeps_mean']:.1f} sweeps and {r['active_grains_mean']:.0f} "
+                    f"{r['projection_sweeps_mean']:.1f} sweeps, "
+                    f"{r.get('projection_tests_mean', np.nan) / 1e3:.0f}k contact tests and "
+                    f"{r['active_grains_mean']:.0f} "
                     f"grains moved a step, largest overlap {r['max_overlap']:.3f} r, "
                     f"surface skill {surface:.3f}, force skill {force_skill:.2f}",
                     flush=True,

@@ -146,6 +146,8 @@ def test_two_rows_a_step_move_the_grains_once_and_fill_the_row_between_from_eith
     assert rows - warm >= 6
     assert model.metrics["reduced_rows"] == rows - warm == len(model.seen)  # a call a row
     assert model.metrics["reduced_steps"] == -(-(rows - warm) // 2)
+    # every step's projection tested the contacts of the grains it moved, in one sweep or more
+    assert model.metrics["projection_tests_mean"] > model.metrics["projection_sweeps_mean"] >= 1
     v, rho = stored["velocity"].values, stored["density"].values
     for k in range(warm, rows - 1, 2):  # the first row of each step: the grains skip it
         np.testing.assert_allclose(rho[k], 0.5 * (rho[k - 1] + rho[k + 1]), rtol=1e-5, atol=1e-3)

@@ -82,9 +82,9 @@ def reduce_run(
     the largest overlap after projection over the radius (``max_overlap``), the deepest body
     penetration the projection iterations left before the final push-out
     (``max_body_depth_m``), whether NDEM stepped the warm-up (``warmup_stepped``, 1 or 0), the
-    mean count of grains moved per step and of projection sweeps run per step, and the steps
-    whose largest overlap was taken over the whole bed (``beyond_ring_steps``: a grain moved
-    past the projected set's ring).
+    mean count per step of grains moved, of projection sweeps run and of the contact tests they
+    made, and the steps whose largest overlap was taken over the whole bed
+    (``beyond_ring_steps``: a grain moved past the projected set's ring).
     Raises :class:`DozerlabError` when the loop diverges, leaving no output.
     """
     from dozerlab.fields.run import load_inputs, moved_bed, sample_row
@@ -150,7 +150,7 @@ def reduce_run(
     compile_kernels(grid)
     times = PhaseTimes()
     worst_overlap = worst_depth = 0.0
-    active, sweeps = [], []
+    active, sweeps, tests = [], [], []
     start = wallclock.perf_counter()
     with FieldStoreWriter(
         out,
@@ -233,6 +233,7 @@ def reduce_run(
             worst_depth = max(worst_depth, st.body_depth)
             active.append(state.active)
             sweeps.append(st.sweeps)
+            tests.append(st.tests)
             t0 = wallclock.perf_counter()
             near = state.near(tip)
             if predicted:
@@ -291,6 +292,7 @@ def reduce_run(
         "max_body_depth_m": worst_depth,
         "active_grains_mean": float(np.mean(active)) if active else 0.0,
         "projection_sweeps_mean": float(np.mean(sweeps)) if sweeps else 0.0,
+        "projection_tests_mean": float(np.mean(tests)) if tests else 0.0,
         "reduced_rows": float(times.rows),
         "reduced_steps": float(steps),
         "beyond_ring_steps": float(state.beyond_ring),
