@@ -53,6 +53,30 @@ def test_writer_buffers_one_chunk(tmp_path, store_arrays):
     assert arr.shape[0] == 10 and arr.shards[0] == 8
 
 
+@pytest.mark.parametrize("announced", [70, 90, 50])
+def test_a_writer_told_its_steps_holds_exactly_what_was_appended(tmp_path, store_arrays, announced):
+    # made 70 steps long at once; made longer and cut at close; made shorter and grown
+    a = store_arrays
+    with FieldStoreWriter(
+        tmp_path / "f.zarr",
+        x=a["x"],
+        y=a["y"],
+        z=a["z"],
+        attrs=a["attrs"],
+        chunk_steps=64,
+        steps=announced,
+    ) as w:
+        for i in range(70):
+            w.append(a["time"][i], *(a[name][i] for name in SCHEMA))
+    ds = open_store(tmp_path / "f.zarr")
+    assert ds.sizes["time"] == 70
+    for name in SCHEMA:
+        np.testing.assert_array_equal(ds[name].values, a[name])
+    np.testing.assert_array_equal(ds["time"].values, a["time"])
+    with pytest.raises(ValueError, match="steps must be >= 0"):
+        FieldStoreWriter(tmp_path / "g.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={}, steps=-1)
+
+
 def test_failed_write_leaves_nothing(tmp_path, store_arrays):
     a = store_arrays
     writer = FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={})

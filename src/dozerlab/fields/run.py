@@ -136,7 +136,13 @@ def drive(
     window: list[tuple[float, int, float, float, int]] = []
     with (
         FieldStoreWriter(
-            out, x=x, y=y, z=z, attrs=attrs, chunk_steps=int(s["chunk_steps"])
+            out,
+            x=x,
+            y=y,
+            z=z,
+            attrs=attrs,
+            chunk_steps=int(s["chunk_steps"]),
+            steps=traj.steps // every,
         ) as writer,
         snapshots(vtk_dir, vtk_every) as vtk,
     ):

@@ -212,6 +212,10 @@ class FieldStoreWriter:
             ``()`` for none); every array's chain ends in a CRC32C whatever it is.
         inner_steps: time steps per inner chunk of a shard (must divide chunk_steps; default:
             ``gcd(chunk_steps, DEFAULT_INNER_STEPS)``).
+        steps: the time steps the caller will append, if known (>= 0): the arrays are made that
+            long at once rather than grown a chunk at a time (a resize of every array a chunk
+            was a third of a reduced run's writing); a store closed shorter is cut to what was
+            appended, one appended longer grows as without it.
     """
 
     def __init__(
@@ -226,7 +230,10 @@ class FieldStoreWriter:
         chunk_steps: int = DEFAULT_CHUNK_STEPS,
         codec: Any = None,
         inner_steps: int | None = None,
+        steps: int | None = None,
     ) -> None:
+        if steps is not None and steps < 0:
+            raise ValueError(f"steps must be >= 0, got {steps}")
         if chunk_steps < 1:
             raise ValueError(f"chunk_steps must be >= 1, got {chunk_steps}")
         if inner_steps is None:
@@ -255,6 +262,7 @@ class FieldStoreWriter:
         self.codec = codec if codec is not None else default_codec()
         self.grid = (self.coords["x"].size, self.coords["y"].size, self.coords["z"].size)
         self.steps = 0
+        self._length = steps or 0  # the arrays' length along time
         self._fill = 0
         self._stack: ExitStack | None = None
         self._arrays: dict[str, zarr.Array] = {}
@@ -299,7 +307,7 @@ class FieldStoreWriter:
         n = self.chunk_steps
         t = group.create_array(
             "time",
-            shape=(0,),
+            shape=(self._length,),
             chunks=(n,),
             dtype="f8",
             dimension_names=("time",),
@@ -315,7 +323,7 @@ class FieldStoreWriter:
             field = name in ("velocity", "density")
             a = group.create_array(
                 name,
-                shape=(0, *shape),
+                shape=(self._length, *shape),
                 shards=(n, *shape) if field else None,
                 chunks=(self.inner_steps, *shape) if field else (n, *shape),
                 dtype="f4",
@@ -389,8 +397,10 @@ class FieldStoreWriter:
             return
         start, stop = self.steps, self.steps + k
         for name, a in self._arrays.items():
-            a.resize((stop, *a.shape[1:]))
+            if stop > self._length:
+                a.resize((stop, *a.shape[1:]))
             a[start:stop] = self._buf[name][:k]
+        self._length = max(self._length, stop)
         self.steps = stop
         self._fill = 0
 
@@ -407,6 +417,10 @@ class FieldStoreWriter:
         if exc_type is None:
             try:
                 self._flush()
+                if self._length > self.steps:  # fewer steps than announced: no zero rows
+                    for a in self._arrays.values():
+                        a.resize((self.steps, *a.shape[1:]))
+                    self._length = self.steps
                 names = [*self.coords, "component", *self._arrays]
                 self._group.attrs[DIGEST_ATTR] = metadata_digests(self._tmp, names)
                 with warnings.catch_warnings():
@@ -454,7 +468,7 @@ def write_store(
         "codec": codec,
         "inner_steps": inner_steps,
     }
-    with FieldStoreWriter(path, attrs=attrs, **coords, **options) as w:
+    with FieldStoreWriter(path, attrs=attrs, **coords, **options, steps=time.size) as w:
         for i in range(time.size):
             w.append(float(time[i]), *(arrays[name][i] for name in SCHEMA))
     return Path(path)

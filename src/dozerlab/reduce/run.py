@@ -160,6 +160,7 @@ def reduce_run(
         attrs=attrs,
         kind=REDUCED_STORE,
         chunk_steps=int(config["sampling"]["chunk_steps"]),
+        steps=rows,
     ) as writer:
         # NDEM warm-up: the models' history, from the same bed along the same trajectory.
         world, _ = make_world(bed, config)
