@@ -13,7 +13,7 @@ import zarr
 from zarr.core import sync as zarr_sync
 
 from dozerlab.fields.reader import DamagedStoreError, UncheckedStoreError
-from dozerlab.fields.store import SCHEMA, FieldStoreWriter, open_store, write_store
+from dozerlab.fields.store import SCHEMA, UNITS, FieldStoreWriter, open_store, write_store
 from dozerlab.learn.data import load_store
 
 
@@ -29,6 +29,8 @@ def test_store_round_trip_opens_in_xarray_with_documented_names(tmp_path, store_
     np.testing.assert_allclose(ds["x"].values, store_arrays["x"], rtol=1e-6)
     assert ds.attrs["scenario"] == "hill" and ds.attrs["bins"] == [4, 3, 2]
     assert float(ds["force"].sel(component="y")[3]) == pytest.approx(store_arrays["force"][3, 1])
+    group = zarr.open_group(path, mode="r")
+    assert {name: group[name].attrs["units"] for name in UNITS} == UNITS
     open_store(path)
 
 

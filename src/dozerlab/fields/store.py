@@ -50,6 +50,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, Crc32cCodec
 from zarr.core import sync as zarr_sync
+from zarr.storage import LocalStore, MemoryStore
 
 from dozerlab.fields.reader import (
     DIGEST_ATTR,
@@ -283,29 +284,29 @@ class FieldStoreWriter:
         return self
 
     def _create(self, tmp: Path) -> None:
-        group = zarr.open_group(tmp, mode="w", zarr_format=3)
+        # Every node's metadata is made in memory, then written in one batch: made one by one
+        # in the directory, with each array's units set after it, the empty store took 54-98 ms
+        # (a wait on zarr's IO thread a file), up to a tenth of a reduced run's loop
+        # (BENCHMARKS.md, "A store's files written in one batch").
+        layout = zarr.open_group(MemoryStore(), mode="w", zarr_format=3, attributes=self.attrs)
         for name, c in self.coords.items():
-            a = group.create_array(
+            layout.create_array(
                 name,
                 shape=c.shape,
                 dtype="f4",
                 dimension_names=(name,),
                 compressors=_checksummed(()),
-                config=_ALL_CHUNKS,
+                attributes={"units": UNITS[name], "long_name": f"bin centre {name}, blade frame"},
             )
-            a[:] = c
-            a.attrs.update({"units": "m", "long_name": f"bin centre {name}, blade frame"})
-        comp = group.create_array(
+        layout.create_array(
             "component",
             shape=(3,),
             dtype=str,
             dimension_names=("component",),
             compressors=_checksummed(()),
-            config=_ALL_CHUNKS,
         )
-        comp[:] = np.array(COMPONENTS)
         n = self.chunk_steps
-        t = group.create_array(
+        layout.create_array(
             "time",
             shape=(self._length,),
             chunks=(n,),
@@ -313,15 +314,13 @@ class FieldStoreWriter:
             dimension_names=("time",),
             fill_value=0.0,
             compressors=_checksummed(()),
-            config=_ALL_CHUNKS,
+            attributes={"units": UNITS["time"]},
         )
-        t.attrs["units"] = "s"
-        self._arrays["time"] = t
         self._buf["time"] = np.zeros(n, dtype=np.float64)
         for name, dims in SCHEMA.items():
             shape = self._shape(name)
             field = name in ("velocity", "density")
-            a = group.create_array(
+            layout.create_array(
                 name,
                 shape=(self._length, *shape),
                 shards=(n, *shape) if field else None,
@@ -330,12 +329,22 @@ class FieldStoreWriter:
                 dimension_names=dims,
                 fill_value=0.0,
                 compressors=_checksummed(self.codec if field else ()),
-                config=_ALL_CHUNKS,
+                attributes={"units": UNITS[name]},
             )
-            a.attrs["units"] = UNITS[name]
-            self._arrays[name] = a
             self._buf[name] = np.zeros((n, *shape), dtype=np.float32)
-        group.attrs.update(self.attrs)
+        nodes = {"": layout.metadata} | {k: a.metadata for k, a in layout.arrays()}
+        made = dict(zarr.create_hierarchy(store=LocalStore(tmp), nodes=nodes))
+        group = made.pop("")
+        assert isinstance(group, zarr.Group)
+        # the runtime config is not metadata: it is set again on the arrays as written
+        arrays = {
+            k: a.with_config(_ALL_CHUNKS) for k, a in made.items() if isinstance(a, zarr.Array)
+        }
+        self._arrays = {k: arrays[k] for k in ("time", *SCHEMA)}
+        _write_all(
+            [(arrays[k], c) for k, c in self.coords.items()]
+            + [(arrays["component"], np.array(COMPONENTS))]
+        )
         self._group = group
         self._tmp = tmp
 
@@ -396,10 +405,10 @@ class FieldStoreWriter:
         if k == 0:
             return
         start, stop = self.steps, self.steps + k
-        for name, a in self._arrays.items():
-            if stop > self._length:
+        if stop > self._length:
+            for a in self._arrays.values():
                 a.resize((stop, *a.shape[1:]))
-            a[start:stop] = self._buf[name][:k]
+        _write_all([(a, self._buf[name][:k]) for name, a in self._arrays.items()], start)
         self._length = max(self._length, stop)
         self.steps = stop
         self._fill = 0
@@ -431,6 +440,23 @@ class FieldStoreWriter:
                 stack.__exit__(*sys.exc_info())
                 raise
         return bool(stack.__exit__(exc_type, exc, tb))
+
+
+def _write_all(parts: list[tuple[Any, np.ndarray]], start: int | None = None) -> None:
+    """Write each array's values in one batch on zarr's IO thread (one wait, not one per
+    array): all of each array, or from ``start`` along its first axis when given."""
+
+    async def batch() -> None:
+        await asyncio.gather(
+            *(
+                a.async_array.setitem(
+                    slice(None) if start is None else slice(start, start + len(v)), v
+                )
+                for a, v in parts
+            )
+        )
+
+    zarr_sync.sync(batch())
 
 
 def write_store(
