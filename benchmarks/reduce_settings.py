@@ -17,6 +17,12 @@ and the smoothed-surface and low-passed force skills; then per variant the loops
 The variants run alternately point by point, so machine noise falls on all of them alike. Reads
 ``--results`` only. The force model was fitted to the loop fields of the workflow's settings:
 under other settings its force skill is a lower bound of what retraining would give.
+
+``--points training`` runs the training points instead: they have no twin, so the figures are
+the smoothed-surface accuracy and the low-passed force error against the point's NDEM run, and
+choosing a setting on them leaves the held-out points unseen. ``--jitter-seeds`` runs each loop
+from the bed and from copies with every grain moved by 1 µm (a seed a copy, 0 the bed itself):
+the loop's own draw-to-draw spread; the summary gives each point's mean over them.
 """
 
 from __future__ import annotations
@@ -59,22 +65,32 @@ def main() -> None:
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--dynamics", default="ridge")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--points", choices=("held-out", "training"), default="held-out")
+    ap.add_argument("--jitter-seeds", type=int, nargs="+", default=[0], metavar="SEED")
     args = ap.parse_args()
     os.environ.setdefault("DOZERLAB_MLFLOW", "0")
     set_threads(args.threads)
     from dozerlab.reduce.compare import compare_point
     from dozerlab.reduce.models import ForcePredictor, load_field_model
     from dozerlab.reduce.run import reduce_run
+    from dozerlab.scenarios.bed import Bed
 
     base = load_config(args.config)
     variants = [_variant(text, base) for text in args.variants]
     res = args.results
-    points = [p for p in P.sweep_points(base) if p.role != "train"]
+    training = args.points == "training"
+    points = [p for p in P.sweep_points(base) if (p.role == "train") == training]
+    # held-out points are scored against NDEM's twin (skills), training points against NDEM
+    surface_key, force_key = (
+        ("surface_accuracy", "force_lp_rel_rmse")
+        if training
+        else ("surface_accuracy_skill", "force_lp_rel_rmse_skill")
+    )
     loop_force = res / "reduced" / args.dynamics / "force_model"
     force = ForcePredictor(
         loop_force if loop_force.is_dir() else P.model_path(res, base["reduced"]["force_model"])
     )
-    figures: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n, _ in variants}
+    figures: dict[str, list[list[tuple[float, float, float, float]]]] = {n: [] for n, _ in variants}
     with tempfile.TemporaryDirectory() as tmp:
         for pt in points:
             model = load_field_model(
@@ -84,48 +100,67 @@ def main() -> None:
                 tuple(base["sampling"]["bins"]),
                 P.field_path(res, pt),
             )
+            beds = {}
+            for seed in args.jitter_seeds:
+                beds[seed] = P.bed_path(res, pt.scenario)
+                if seed:
+                    beds[seed] = Path(tmp) / f"bed-{seed}.npz"
+                    Bed.load(P.bed_path(res, pt.scenario)).jittered(1e-6, seed).save(beds[seed])
             for name, cfg in variants:
-                store, state = Path(tmp) / "run.zarr", Path(tmp) / "run.npz"
-                r = reduce_run(
-                    P.bed_path(res, pt.scenario),
-                    P.trajectory_path(res, pt),
-                    cfg,
-                    model,
-                    force,
-                    store,
-                    state,
-                    scenario=pt.scenario,
-                    speed=pt.speed,
-                    depth=pt.depth,
-                )
-                m, _ = compare_point(
-                    P.field_path(res, pt),
-                    store,
-                    P.bed_path(res, pt.scenario),
-                    P.state_path(res, pt),
-                    state,
-                    cfg,
-                    twin=(P.twin_path(res, pt, "zarr"), P.twin_path(res, pt, "npz")),
-                )
-                surface, force_skill = m["surface_accuracy_skill"], m["force_lp_rel_rmse_skill"]
-                speedup = m.get("loop_speedup") or float("nan")
-                figures[name].append((r["wall_time_s"], speedup, surface, force_skill))
-                print(
-                    f"{name:>12} {pt.scenario} {pt.speed}/{pt.depth}: loop {r['wall_time_s']:.2f} s "
-                    f"({speedup:.1f}x NDEM), projection {r['ms_projection']:.2f} ms a row, "
-                    f"{r['projection_sweeps_mean']:.1f} sweeps, "
-                    f"{r.get('projection_tests_mean', np.nan) / 1e3:.0f}k contact tests and "
-                    f"{r['active_grains_mean']:.0f} "
-                    f"grains moved a step, largest overlap {r['max_overlap']:.3f} r, "
-                    f"surface skill {surface:.3f}, force skill {force_skill:.2f}",
-                    flush=True,
-                )
+                draws = []
+                for seed, bed in beds.items():
+                    store, state = Path(tmp) / "run.zarr", Path(tmp) / "run.npz"
+                    r = reduce_run(
+                        bed,
+                        P.trajectory_path(res, pt),
+                        cfg,
+                        model,
+                        force,
+                        store,
+                        state,
+                        scenario=pt.scenario,
+                        speed=pt.speed,
+                        depth=pt.depth,
+                    )
+                    m, _ = compare_point(
+                        P.field_path(res, pt),
+                        store,
+                        P.bed_path(res, pt.scenario),
+                        P.state_path(res, pt),
+                        state,
+                        cfg,
+                        twin=None
+                        if training
+                        else (P.twin_path(res, pt, "zarr"), P.twin_path(res, pt, "npz")),
+                    )
+                    surface, force_fig = m[surface_key], m[force_key]
+                    speedup = m.get("loop_speedup") or float("nan")
+                    draws.append((r["wall_time_s"], speedup, surface, force_fig))
+                    print(
+                        f"{name:>12} {pt.scenario} {pt.speed}/{pt.depth}"
+                        f"{f' (bed jittered, seed {seed})' if seed else ''}: loop "
+                        f"{r['wall_time_s']:.2f} s ({speedup:.1f}x NDEM), projection "
+                        f"{r['ms_projection']:.2f} ms a row, {r['projection_sweeps_mean']:.1f} "
+                        f"sweeps, {r.get('projection_tests_mean', np.nan) / 1e3:.0f}k contact tests "
+                        f"and {r['active_grains_mean']:.0f} grains moved a step, largest overlap "
+                        f"{r['max_overlap']:.3f} r, {surface_key.replace('_', ' ')} {surface:.3f}, "
+                        f"{force_key.replace('_', ' ')} {force_fig:.2f}",
+                        flush=True,
+                    )
+                figures[name].append(draws)
     for name, rows in figures.items():
-        a = np.array(rows)
+        a = np.array(rows)  # (points, draws, 4)
+        mean = a.mean(axis=1)
+        spread = (
+            f", spread (sd over the draws) {np.round(a[:, :, 2].std(axis=1, ddof=1), 3).tolist()}"
+            if a.shape[1] > 1
+            else ""
+        )
         print(
-            f"{name}: loops {a[:, 0].sum():.2f} s in all, speed-up {np.round(a[:, 1], 1).tolist()}, "
-            f"surface skill {np.round(a[:, 2], 3).tolist()} (mean {a[:, 2].mean():.3f}), "
-            f"force skill {np.round(a[:, 3], 2).tolist()}"
+            f"{name}: loops {a[:, :, 0].sum():.2f} s in all, speed-up "
+            f"{np.round(mean[:, 1], 1).tolist()}, {surface_key.replace('_', ' ')} "
+            f"{np.round(mean[:, 2], 3).tolist()} (mean {mean[:, 2].mean():.3f}){spread}, "
+            f"{force_key.replace('_', ' ')} {np.round(mean[:, 3], 2).tolist()}"
         )
 
 
