@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from dozerlab.fields.jobs import simulate
-from dozerlab.fields.run import drive
+from dozerlab.fields.run import RunStats, drive
 from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.fields.store import ATTRS, open_store
+from dozerlab.runtime import DozerlabError
 from tests.helpers import write_tiny_run
 
 
@@ -88,3 +89,22 @@ def test_drive_reports_the_active_zones_awake_fraction(run_inputs):
     zoned = drive(bed, traj, zoned_config, grid, attrs, tmp / "zone.zarr")
     assert full.metrics(bed.count)["active_fraction"] == 1.0
     assert 0.0 < zoned.metrics(bed.count)["active_fraction"] < 1.0
+
+
+def test_drive_counts_the_steps_that_re_linearised(run_inputs):
+    # the tiny run with Hertz contacts (E 1e8 Pa): at its 30 sweeps a step the grains the
+    # blade jams sink past half a radius without the rounds
+    tmp, config, bed, traj = run_inputs
+    grid = SamplingGrid.from_config(config)
+    attrs = dict.fromkeys(ATTRS, 0) | {"scenario": "hill", "bins": list(grid.bins)}
+    hertz = config | {"material": config["material"] | {"youngs_modulus": 1e8}}
+
+    def run(name: str, **solver: float) -> RunStats:
+        cfg = hertz | {"solver": hertz["solver"] | solver}
+        return drive(bed, traj, cfg, grid, attrs, tmp / f"{name}.zarr")
+
+    with pytest.raises(DozerlabError, match="diverged"):
+        run("never", relinearize=0)
+    stats = run("past", relinearize=3, relinearize_above=0.2)
+    assert 0 < stats.relinearized_steps < traj.steps
+    assert stats.metrics(bed.count)["relinearized_steps"] == stats.relinearized_steps

@@ -47,6 +47,7 @@ class RunStats:
     sample_time: float = 0.0
     contact_iterations: float = 0.0
     active: float = 0.0
+    relinearized_steps: int = 0
     forces: list[np.ndarray] = field(default_factory=list)
 
     def metrics(self, particles: int) -> dict[str, float]:
@@ -63,6 +64,7 @@ class RunStats:
             if self.step_time > 0
             else 0.0,
             "particle_count": float(particles),
+            "relinearized_steps": float(self.relinearized_steps),
             "active_fraction": self.active / (self.steps * particles)
             if self.steps and particles
             else 0.0,
@@ -163,7 +165,10 @@ def drive(
             stats.step_time += dt_wall
             stats.contact_iterations += st.contacts * st.iterations
             stats.active += st.active
-            window.append((dt_wall, st.contacts, st.residual, st.max_overlap, st.active))
+            stats.relinearized_steps += st.rounds > 0
+            window.append(
+                (dt_wall, st.contacts, st.residual, st.max_overlap, st.active, st.rounds > 0)
+            )
             if (i + 1) % every == 0:
                 t1 = wallclock.perf_counter()
                 row = sample_row(world, blade, grid, traj, i + 1, centre_minus_tip)
@@ -176,7 +181,7 @@ def drive(
                 w = np.array(window)
                 log.info(
                     "step %d/%d t=%.3f s: %.0f grains awake, contacts %.0f, residual %.3g m/s, "
-                    "max overlap %.3g m, %.1f ms/step",
+                    "max overlap %.3g m, %d steps re-linearised, %.1f ms/step",
                     i + 1,
                     traj.steps,
                     traj.time[i + 1],
@@ -184,6 +189,7 @@ def drive(
                     w[:, 1].mean(),
                     w[:, 2].mean(),
                     w[:, 3].max(),
+                    w[:, 5].sum(),
                     1e3 * w[:, 0].mean(),
                 )
                 window.clear()

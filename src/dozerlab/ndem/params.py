@@ -29,6 +29,7 @@ SOLVER_KEYS = (
     "relaxation",
     "tolerance",
     "relinearize",
+    "relinearize_above",
 )
 # solver.active_zone's keys and the Parameters fields they fill.
 ZONE_KEYS = {
@@ -75,7 +76,8 @@ class Parameters:
     (> 1: over-relaxation, projected SOR); tolerance: the RMS velocity change in m/s of a sweep's
     updates at the contact points below which a step's solve stops early (0: always run
     ``iterations``); relinearize: rounds (≥ 0) in which the Hertz rows whose pairs sink past the
-    overlap their compliance was taken at are taken again there and the solve continues;
+    overlap their compliance was taken at are taken again there and the solve continues, in the
+    steps where some pair would end deeper than relinearize_above of its smaller radius (≥ 0);
     gravity (3,) m/s²; damping_steps: SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
     poisson_ratio ν in [0, 0.5); max_overlap: overlap over the smaller radius that raises
     DivergenceError; density (kg/m³), friction μ and rolling_resistance μ_r: sphere defaults;
@@ -93,6 +95,7 @@ class Parameters:
     relaxation: float = field(default_factory=_schema("relaxation"))
     tolerance: float = field(default_factory=_schema("tolerance"))
     relinearize: int = field(default_factory=_schema("relinearize"))
+    relinearize_above: float = field(default_factory=_schema("relinearize_above"))
     damping_steps: float = field(default_factory=_schema("damping_steps"))
     youngs_modulus: float = field(default_factory=_schema("youngs_modulus"))
     poisson_ratio: float = field(default_factory=_schema("poisson_ratio"))
@@ -139,6 +142,7 @@ class Parameters:
         if int(self.relinearize) != self.relinearize or int(self.relinearize) < 0:
             raise ValueError(f"relinearize must be an integer >= 0, got {self.relinearize!r}")
         put("relinearize", int(self.relinearize))
+        put("relinearize_above", nonnegative("relinearize_above", self.relinearize_above))
         put("gravity", vec3("gravity", self.gravity))
         put("damping_steps", float(damping))
         put("poisson_ratio", float(pr))

@@ -303,6 +303,33 @@ def all_finite(x, v, w):
     return not bad.any()
 
 
+@njit(cache=True, inline="always")
+def _end_overlap(k, ci, cj, cd, gap, v, r, h):
+    """Row ``k``'s pair: the overlap g − h·uₙ (m) it reaches by the end of the step with the
+    velocities ``v``, and its smaller radius (m; the sphere's own against a body)."""
+    i = ci[k]
+    j = cj[k]
+    un = 0.0
+    for a in range(3):
+        vj = v[j, a] if j >= 0 else cd[k, VB + a]
+        un += cd[k, N0 + a] * (v[i, a] - vj)
+    return gap[k] - h * un, (min(r[i], r[j]) if j >= 0 else r[i])
+
+
+@njit(cache=True)
+def deepest_end(ci, cj, cd, gap, v, r, h, swept):
+    """The largest overlap over the smaller radius that a compliant Hertz row's pair reaches by
+    the end of the step, g − h·uₙ with the solved velocities (0 if none), over the first
+    ``swept`` rows: what :func:`stiffen` reads, to tell a step that needs its rounds."""
+    worst = 0.0
+    for k in range(swept):
+        if cd[k, SIG] <= 0.0 or cd[k, KN] <= 0.0:
+            continue
+        g_end, rmin = _end_overlap(k, ci, cj, cd, gap, v, r, h)
+        worst = max(worst, g_end / rmin)
+    return worst
+
+
 @njit(parallel=True, cache=True)
 def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
     """Re-linearise, in place, the Hertz rows whose pair reaches by the end of the step an
@@ -323,16 +350,11 @@ def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
         sig = cd[k, SIG]
         if sig <= 0.0 or cd[k, KN] <= 0.0:
             continue
-        i = ci[k]
-        j = cj[k]
-        un = 0.0
-        for a in range(3):
-            vj = v[j, a] if j >= 0 else cd[k, VB + a]
-            un += cd[k, N0 + a] * (v[i, a] - vj)
-        g_end = gap[k] - h * un
-        rmin = min(r[i], r[j]) if j >= 0 else r[i]
+        g_end, rmin = _end_overlap(k, ci, cj, cd, gap, v, r, h)
         if g_end <= SINK_FLOOR * rmin:
             continue
+        i = ci[k]
+        j = cj[k]
         rstar = r[i] * r[j] / (r[i] + r[j]) if j >= 0 else r[i]
         kn = 4.0 / 3.0 * estar * np.sqrt(rstar)
         # the overlap Σ was taken at: Σ = 16 Υ / (5 k_n h² √g)

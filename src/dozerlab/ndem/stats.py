@@ -23,7 +23,9 @@ class StepStats:
     step and time (s) after the step; iterations: solver sweeps run (at most
     ``solver.iterations``, fewer when ``solver.tolerance`` stopped the solve, and up to that
     many more per ``solver.relinearize`` round that ran); active: spheres
-    awake after the step (all of them unless ``solver.active_zone`` is enabled).
+    awake after the step (all of them unless ``solver.active_zone`` is enabled); rounds: the
+    ``solver.relinearize`` rounds that ran (0 in a step ``solver.relinearize_above`` passed
+    over).
     """
 
     step: int
@@ -35,3 +37,4 @@ class StepStats:
     max_overlap_fraction: float
     iterations: int = 0
     active: int = 0
+    rounds: int = 0

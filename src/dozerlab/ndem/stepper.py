@@ -114,7 +114,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         )
         v0, w0 = state.v.copy(), state.w.copy()
     while True:
-        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps = _solve_awake(
+        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps, rounds = _solve_awake(
             state, bodies, p, cells, start, dims, reach, slab, n_slabs, rot, body_reach
         )
         if not p.active_zone:
@@ -154,6 +154,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         max_overlap_fraction=frac_max,
         iterations=int(sweeps),
         active=int(active),
+        rounds=rounds,
     )
 
 
@@ -169,11 +170,13 @@ def _solve_awake(
     n_slabs: int,
     rot: np.ndarray,
     body_reach: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int]:
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int, int
+]:
     """Detect, assemble and solve the contacts of the awake spheres (all of them without the
     active zone), gravity applied to them; velocities updated in place. Returns i, j, the
-    contact table, the multipliers, :func:`_check_overlap`'s figures, the residual (m/s) and
-    the sweeps run."""
+    contact table, the multipliers, :func:`_check_overlap`'s figures, the residual (m/s), the
+    sweeps run and the ``relinearize`` rounds run."""
     h = p.dt
     invm = 1.0 / state.m
     invI = 1.0 / (0.4 * state.m * state.r**2)
@@ -248,8 +251,13 @@ def _solve_awake(
             p.tolerance,
             p.relaxation,
         )
-        for _ in range(p.relinearize if estar > 0.0 else 0):
-            swept = int(gstart[2 * n_slabs])
+        swept = int(gstart[2 * n_slabs])
+        rounds = p.relinearize if estar > 0.0 else 0
+        if rounds and p.relinearize_above > 0.0:
+            deepest = solver.deepest_end(ci, cj, cd, gap, state.v, state.r, h, swept)
+            rounds = rounds if deepest > p.relinearize_above else 0
+        ran = 0
+        for _ in range(rounds):
             if solver.stiffen(ci, cj, cd, gap, state.v, state.r, estar, h, upsilon, swept) == 0:
                 break
             residual, more = solver.solve(
@@ -257,7 +265,8 @@ def _solve_awake(
                 *(False, METHODS.index(p.method), p.tolerance, p.relaxation),
             )
             sweeps += more
-    return ci, cj, cd, lam, overlap, float(residual), int(sweeps)
+            ran += 1
+    return ci, cj, cd, lam, overlap, float(residual), int(sweeps), ran
 
 
 @njit(cache=True)

@@ -71,6 +71,7 @@ class World:
     relaxation = _parameter("relaxation")
     tolerance = _parameter("tolerance")
     relinearize = _parameter("relinearize")
+    relinearize_above = _parameter("relinearize_above")
     damping_steps = _parameter("damping_steps")
     youngs_modulus = _parameter("youngs_modulus")
     poisson_ratio = _parameter("poisson_ratio")
