@@ -1,6 +1,6 @@
 """Impacts at the working time step: a jittered lattice of grains dropped on the ground.
 
-    python benchmarks/ndem_drop.py --solvers "" "iterations=200" "relinearize=3"
+    python benchmarks/ndem_drop.py --solvers "relinearize=0" "" "relinearize_above=0"
 
 The lattice: ``--layers`` layers of ``--grid`` (x, y) grains ``--spacing`` apart (12 × 68 × 17 =
 13 872 grains 5.8 cm apart by default), radii r·(1 ± 10 %) with r = 2.5 cm, each centre
@@ -11,7 +11,7 @@ the ones below at up to ~2 m/s. The box is the lattice plus 2.8 cm along x and 0
 kg/m³, ``solver.dt`` 0.01 s unless a solver says otherwise.
 
 Each solver is a comma-separated list of ``solver`` fields over the schema's defaults
-(``iterations=200,relinearize=3``; ``""`` the defaults). Printed per solver, side by side in one
+(``iterations=200,relinearize=0``; ``""`` the defaults). Printed per solver, side by side in one
 process: the largest overlap over the smaller radius at the start of every ``--every``-th step
 (and every step above 5 %), the steps run, the largest overlap of the run, the mean sweeps per
 step, the wall time of the stepping and the fastest grain's speed at the end; a
@@ -76,7 +76,10 @@ def _solver(spec: str) -> dict[str, object]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "--solvers", nargs="+", default=["", "relinearize=3"], help="FIELD=VALUE,... per solver"
+        "--solvers",
+        nargs="+",
+        default=["relinearize=0", "", "relinearize_above=0"],
+        help="FIELD=VALUE,... per solver",
     )
     ap.add_argument("--grid", type=int, nargs=2, default=[68, 17])
     ap.add_argument("--layers", type=int, default=12)
@@ -101,7 +104,8 @@ def main(argv: list[str] | None = None) -> None:
         p = world.params
         print(
             f"\n[{spec or 'defaults'}] {world.n_spheres} grains, dt {p.dt} s, {p.iterations} "
-            f"sweeps at most, tolerance {p.tolerance} m/s, relinearize {p.relinearize}"
+            f"sweeps at most, tolerance {p.tolerance} m/s, relinearize {p.relinearize} past "
+            f"{p.relinearize_above} r"
         )
         seconds, worst, sweeps, done, line = 0.0, 0.0, 0, 0, []
         try:

@@ -4,8 +4,9 @@
         --trajectory results/trajectories/hill/speed~1.5_depth~0.08.csv --config config/quick.yaml \\
         --solvers pgs:1.0:100 pgs:1.5:60 pgs:1.0:200 pgs:1.5:100
 
-Each solver is METHOD:RELAXATION:ITERATIONS[:RELINEARIZE[:TOLERANCE]] (``solver.relinearize``
-and ``solver.tolerance`` the schema's defaults unless given). The run drives the blade along the
+Each solver is METHOD:RELAXATION:ITERATIONS[:RELINEARIZE[:TOLERANCE[:ABOVE]]]
+(``solver.relinearize``, ``solver.tolerance`` and ``solver.relinearize_above`` the schema's
+defaults unless given; ABOVE 0 runs the rounds in every step). The run drives the blade along the
 trajectory from the bed as the ``simulate`` job does (without sampling) and prints, side by
 side in one process, the seconds spent stepping, the largest overlap over the smaller radius
 (how soft the bed got: the divergence guard is ``solver.max_overlap``), the mean sweeps and
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> None:
             solver["relinearize"] = int(more[0])
         if len(more) > 1:
             solver["tolerance"] = float(more[1])
+        if len(more) > 2:
+            solver["relinearize_above"] = float(more[2])
         world, _ = make_world(bed, {**config, "solver": {**config["solver"], **solver}})
         world.state.v *= 1.0 + eps
         blade = add_blade(world, traj.position[0], config)

@@ -135,7 +135,7 @@ def drive(
     stats = RunStats()
     x, y, z = grid.centres()
     start = wallclock.perf_counter()
-    window: list[tuple[float, int, float, float, int]] = []
+    window: list[tuple[float, int, float, float, int, bool]] = []
     with (
         FieldStoreWriter(
             out,
