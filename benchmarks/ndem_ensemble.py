@@ -26,6 +26,10 @@ definition and an ensemble of K draws reaches √((1 + 1/K)/2).
     python benchmarks/ndem_ensemble.py --results results --seeds 11 12 13 14 15 16 \
         --keep /tmp/ndem_ensemble --jobs 2
 
+The workflow measures the expected run itself with ``reduced.twin.draws`` (the report's and
+``compare-reduced``'s ``expected_*`` figures); this benchmark adds the subsets, the k → ∞ limit
+and draws beyond the workflow's, without rerunning it.
+
 The beds, trajectories, NDEM runs, twins and reduced runs come from a workflow's results folder
 (the default sweep's); the default points are the config's held-out ones. Each draw is one
 ``python -m dozerlab simulate`` on one thread, ``--jobs`` of them at a time. Not a test.

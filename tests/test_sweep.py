@@ -67,6 +67,23 @@ def test_roles_and_the_paths_of_beds_models_and_validation():
     )
 
 
+def test_the_twin_is_draw_one_and_further_draws_are_named_by_number():
+    point = P.sweep_points(CFG)[2]
+    assert [tuple(map(str, run)) for run in P.twin_draws("results", point, 2)] == [
+        (
+            "results/twins/hill/speed~0.75_depth~0.1.zarr",
+            "results/twins/hill/speed~0.75_depth~0.1.npz",
+        ),
+        (
+            "results/twins/hill/speed~0.75_depth~0.1_draw~2.zarr",
+            "results/twins/hill/speed~0.75_depth~0.1_draw~2.npz",
+        ),
+    ]
+    assert P.twin_path("results", point, "zarr", 1) == P.twin_path("results", point)
+    with pytest.raises(ValueError, match="count from 1"):
+        P.twin_path("results", point, draw=0)
+
+
 @pytest.mark.parametrize("value", [-0.1, float("nan"), float("inf")])
 def test_negative_and_non_finite_numbers_are_refused(value):
     with pytest.raises(ValueError, match="finite and >= 0"):

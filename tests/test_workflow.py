@@ -510,31 +510,34 @@ def test_force_fields_pick_the_reduce_jobs_force_model(tmp_path):
 
 
 def test_twin_runs_join_the_workflow_only_when_enabled(tmp_path):
-    """reduced.twin.enabled: one twin NDEM job per held-out point, from its bed and trajectory
-    with the configured jitter, and compare-reduced reads the twins; disabled: none."""
+    """reduced.twin.enabled: per held-out point one twin NDEM job from its bed and trajectory
+    with the configured jitter and seed, and with reduced.twin.draws 3 two more draws (seed + 1,
+    seed + 2) beside it; compare-reduced reads them all; disabled: none."""
     quick = yaml.safe_load(QUICK.read_text())
-    for enabled, twin_jobs in ((True, 2), (False, 0)):
-        quick["reduced"]["twin"] = {"enabled": enabled, "jitter_m": 2e-6, "seed": 7}
+    held_out = quick["sweep"]["interpolation"] + quick["sweep"]["extrapolation"]
+    for enabled in (True, False):
+        quick["reduced"]["twin"] = {"enabled": enabled, "jitter_m": 2e-6, "seed": 7, "draws": 3}
         cfg = tmp_path / f"{enabled}.yaml"
         cfg.write_text(yaml.safe_dump(quick))
         done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
         assert done.returncode == 0, done.stderr[-3000:]
         jobs = re.findall(r"^rule (\w+):", done.stdout, re.M)
-        assert jobs.count("twin") == twin_jobs
+        n = len(held_out) if enabled else 0
+        assert (jobs.count("twin"), jobs.count("twin_draw")) == (n, 2 * n)
         twins = re.findall(
             r"dozerlab simulate .*--jitter (\S+) --jitter-seed (\S+) .*--out '?([^'\s]+)",
             done.stdout,
         )
-        held_out = quick["sweep"]["interpolation"] + quick["sweep"]["extrapolation"]
-        stores = [
-            f"results/twins/{p['scenario']}/speed~{p['speed']}_depth~{p['depth']}.zarr"
-            for p in held_out
-        ]
-        assert sorted(twins) == (sorted(("2e-06", "7", s) for s in stores) if enabled else [])
+        want = []
+        for p in held_out if enabled else []:
+            stem = f"results/twins/{p['scenario']}/speed~{p['speed']}_depth~{p['depth']}"
+            want += [(str(7 + k), f"{stem}{f'_draw~{k + 1}' if k else ''}.zarr") for k in range(3)]
+        assert sorted(twins) == sorted(("2e-06", seed, s) for seed, s in want)
         compare = re.findall(
             r"^rule compare_reduced:\n(?:    .*\n)*?    input: (.*)$", done.stdout, re.M
         )
         assert compare and all(("results/twins/" in line) == enabled for line in compare)
+        assert all(line.count("_draw~") == 4 * n for line in compare)
         assert jobs.count("simulate") == 6  # NDEM's own runs, with or without twins
 
 

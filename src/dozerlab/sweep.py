@@ -156,6 +156,9 @@ PATHS = {
     "twin": f"twins/{{scenario}}/{POINT_STEM}.zarr",
     "twin_state": f"twins/{{scenario}}/{POINT_STEM}.npz",
     "twin_benchmark": f"benchmarks/twin/{{scenario}}/{POINT_STEM}.tsv",
+    "twin_draw": f"twins/{{scenario}}/{POINT_STEM}_draw~{{draw}}.zarr",
+    "twin_draw_state": f"twins/{{scenario}}/{POINT_STEM}_draw~{{draw}}.npz",
+    "twin_draw_benchmark": f"benchmarks/twin/{{scenario}}/{POINT_STEM}_draw~{{draw}}.tsv",
     "reduced": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.zarr",
     "reduced_state": f"reduced/{{dynamics_model}}/{{scenario}}/{POINT_STEM}.npz",
     "reduce_benchmark": "benchmarks/reduce/{dynamics_model}/held_out.tsv",
@@ -243,12 +246,27 @@ def state_path(results: str | Path, point: SweepPoint) -> Path:
     return _path("state", results, point)
 
 
-def twin_path(results: str | Path, point: SweepPoint, ext: str = "zarr") -> Path:
+def twin_path(results: str | Path, point: SweepPoint, ext: str = "zarr", draw: int = 1) -> Path:
     """``results/twins/{scenario}/speed~{speed}_depth~{depth}.{ext}``: the point's twin NDEM run
-    (``reduced.twin``), its field store (``zarr``) or final state (``npz``)."""
+    (``reduced.twin``), its field store (``zarr``) or final state (``npz``); draw k ≥ 2 of
+    ``reduced.twin.draws``: ``…_depth~{depth}_draw~{k}.{ext}``."""
     if ext not in ("zarr", "npz"):
         raise ValueError(f"a twin run is a zarr store or an npz state, not '{ext}'")
-    return _path("twin" if ext == "zarr" else "twin_state", results, point)
+    if draw < 1:
+        raise ValueError(f"twin draws count from 1, got {draw}")
+    if draw == 1:
+        return _path("twin" if ext == "zarr" else "twin_state", results, point)
+    return _path(
+        "twin_draw" if ext == "zarr" else "twin_draw_state", results, point, draw=str(draw)
+    )
+
+
+def twin_draws(results: str | Path, point: SweepPoint, draws: int) -> list[tuple[Path, Path]]:
+    """The (store, final state) of each of the point's ``draws`` twin runs, draw 1 first."""
+    return [
+        (twin_path(results, point, "zarr", k), twin_path(results, point, "npz", k))
+        for k in range(1, draws + 1)
+    ]
 
 
 def reduced_path(

@@ -74,9 +74,12 @@ def test_simulate_refuses_less_than_one_thread(tmp_path, capsys):
     assert "argument --threads: 0 is less than the minimum of 1" in capsys.readouterr().err
 
 
-def test_simulate_with_jitter_runs_a_twin_in_ndems_formats(tmp_path, capsys):
+def test_simulate_with_jitter_runs_a_twin_in_ndems_formats(tmp_path, capsys, monkeypatch):
     """--jitter: NDEM from the bed with every grain moved that far, as simulate's own outputs
-    (marked so); at the start the twin's grains move by the jitter's scale where NDEM's rest."""
+    (marked so; its MLflow run tagged with the jitter's seed, which tells a twin's draws apart);
+    at the start the twin's grains move by the jitter's scale where NDEM's rest."""
+    import mlflow
+
     from dozerlab.fields.run import STATE_FILE
     from dozerlab.fields.store import FIELD_STORE, open_store
     from dozerlab.scenarios.bed import Bed
@@ -85,9 +88,15 @@ def test_simulate_with_jitter_runs_a_twin_in_ndems_formats(tmp_path, capsys):
     write_tiny_run(tmp_path)  # the same path whatever the solver's sweeps
     base = ["simulate", "--bed", str(tmp_path / "bed.npz"), "--config", json.dumps(config)]
     base += ["--trajectory", str(tmp_path / "speed~0.5_depth~0.06.csv")]
+    monkeypatch.setenv("DOZERLAB_MLFLOW", "1")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    monkeypatch.chdir(tmp_path)
     for name, extra in (("ndem", []), ("twin", ["--jitter", "1e-6", "--jitter-seed", "3"])):
         out = ["--out", str(tmp_path / f"{name}.zarr"), "--state", str(tmp_path / f"{name}.npz")]
         assert main([*base, *out, *extra]) == 0, capsys.readouterr().err
+    runs = mlflow.search_runs(experiment_names=["dozerlab"], output_format="list")
+    tags = {r.data.tags["rule"]: r.data.tags for r in runs}
+    assert tags["twin"]["jitter_seed"] == "3" and "jitter_seed" not in tags["simulate"]
     ndem, twin = open_store(tmp_path / "ndem.zarr"), open_store(tmp_path / "twin.zarr")
     assert FIELD_STORE.recognise(tmp_path / "twin.zarr")
     assert STATE_FILE.recognise(tmp_path / "twin.npz")  # a rerun replaces them, as simulate's

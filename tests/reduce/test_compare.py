@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 
 import numpy as np
 import pytest
 
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce.compare import (
+    EXPECTED_FIGURES,
     FIGURES,
+    against_expected,
     compare_point,
     field_errors,
     gaussian_smooth,
@@ -105,7 +108,7 @@ def test_job_seconds_read_snakemakes_benchmark(tmp_path):
 def test_each_point_of_a_job_takes_its_loop_and_an_equal_part_of_the_rest():
     # a 12 s job of loops of 2, 3 and 4 s: the 3 s left (start-up, models, writing) split three ways
     assert job_shares(12.0, [2.0, 3.0, 4.0]) == pytest.approx([3.0, 4.0, 5.0])
-    assert sum(job_shares(12.0, [2.0, 3.0, 4.0])) == pytest.approx(12.0)  # type: ignore[arg-type]
+    assert sum(job_shares(12.0, [2.0, 3.0, 4.0])) == pytest.approx(12.0)
     assert job_shares(7.0, [4.0]) == [7.0]  # one point: the whole job
     assert job_shares(None, [2.0, 3.0]) == [None, None]
     assert job_shares(12.0, [2.0, None]) == [None, None]
@@ -304,3 +307,51 @@ def test_transfer_gap_sets_unseen_terrain_against_the_seen_shapes():
     entries[-1]["surface_accuracy_skill"] = 0.70
     assert transfer_gap(entries, 0.1)["met"] is True  # type: ignore[index]
     assert transfer_gap(entries[:3], 0.1) is None  # no unseen terrain
+
+
+def test_the_expected_run_is_the_mean_of_the_draws():
+    """Two draws whose forces are 1.1 and 1.3 times a swell and whose surfaces rise 30 and 50 mm:
+    the expected run is 1.2 times the swell and 40 mm, so a run that is it scores no error and
+    full accuracy, and NDEM's run (the swell, the bed 20 mm up) misses by a sixth and by half."""
+    dt, t = 0.01, np.arange(300) * 0.01
+    swell = np.zeros((300, 3))
+    swell[:, 0] = 2.0 + np.sin(2 * np.pi * t / 2.0)
+    bed = smoothed_surface(*_layer(), 2.0, 1.0, 0.1)
+    ref = types.SimpleNamespace(surface_bed=bed, row_dt=dt)
+    draws = [
+        {"force": k * swell, "surface": smoothed_surface(*_layer(dz=dz), 2.0, 1.0, 0.1)}
+        for k, dz in ((1.1, 0.03), (1.3, 0.05))
+    ]
+    rows = slice(10, None)
+    mean = against_expected(
+        ref, 1.2 * swell, smoothed_surface(*_layer(dz=0.04), 2.0, 1.0, 0.1), draws, rows
+    )
+    assert mean["force_lp_rel_rmse"] == pytest.approx(0.0, abs=1e-12)
+    assert mean["surface_accuracy"] == pytest.approx(1.0, abs=1e-9)
+    ndem = against_expected(
+        ref, swell, smoothed_surface(*_layer(dz=0.02), 2.0, 1.0, 0.1), draws, rows
+    )
+    assert ndem["force_lp_rel_rmse"] == pytest.approx(0.2 / 1.2, rel=1e-9)
+    assert ndem["surface_accuracy"] == pytest.approx(0.5, abs=1e-9)
+    assert set(mean) == set(EXPECTED_FIGURES)
+    with pytest.raises(ValueError, match="at least one draw"):
+        against_expected(ref, swell, bed, [], rows)
+
+
+def test_twin_draws_average_the_twin_and_measure_the_expected_run(ndem_run):
+    """With NDEM itself as the run, the twin and two more draws, the twin's figures are NDEM's,
+    the run and NDEM's run both are the expected run (no error, full accuracy) and the force
+    skill has no denominator; draws without the twin are refused."""
+    tmp, config = ndem_run
+    store, bed, state = tmp / "ndem.zarr", tmp / "bed.npz", tmp / "ndem.npz"
+    one, _ = compare_point(store, store, bed, state, state, config, twin=(store, state))
+    m, _ = compare_point(
+        store, store, bed, state, state, config, twin=(store, state), draws=[(store, state)] * 2
+    )
+    assert m["twin_draws"] == 3 and "twin_draws" not in one
+    assert all(m[f"twin_{k}"] == pytest.approx(one[f"twin_{k}"]) for k in FIGURES)
+    assert m["expected_force_lp_rel_rmse"] == 0.0 and m["ndem_expected_force_lp_rel_rmse"] == 0.0
+    assert m["expected_surface_accuracy"] == 1.0 and m["expected_surface_accuracy_skill"] == 1.0
+    assert m["expected_force_lp_rel_rmse_skill"] is None
+    with pytest.raises(ValueError, match="need the twin"):
+        compare_point(store, store, bed, state, state, config, draws=[(store, state)])

@@ -60,6 +60,7 @@ wildcard_constraints:
     speed=P.WILDCARD_PATTERN,
     depth=P.WILDCARD_PATTERN,
     model="[a-z]+",
+    draw="[1-9][0-9]*",
     dynamics_model="|".join(schema()["properties"]["reduced"]["properties"]["dynamics_models"]["items"]["enum"]),
 
 
@@ -220,12 +221,20 @@ def reduced_of(dynamics_model):
     return [str(P.reduced_path(RESULTS, dynamics_model, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]
 
 
+def ndem_config_json(wildcards):
+    """The --config of an NDEM run of the scenario (rules simulate, twin and twin_draw)."""
+    return config_json(
+        "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wildcards.scenario
+    )
+
+
 def twins_of_held_out():
-    """The twin NDEM runs (stores and final states) of the held-out points when reduced.twin is
-    enabled, else none."""
+    """The twin NDEM runs (stores and final states, every one of reduced.twin.draws) of the
+    held-out points when reduced.twin is enabled, else none."""
     if not config["reduced"]["twin"]["enabled"]:
         return []
-    return [str(P.twin_path(RESULTS, p, ext)) for p in HELD_OUT for ext in ("zarr", "npz")]
+    draws = config["reduced"]["twin"]["draws"]
+    return [str(path) for p in HELD_OUT for run in P.twin_draws(RESULTS, p, draws) for path in run]
 
 
 def reduced_comparisons():

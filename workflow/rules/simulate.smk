@@ -20,9 +20,7 @@ rule simulate:
         **cluster.job_resources(config, "simulate"),
     priority: run_priority
     params:
-        cfg=lambda wc: config_json(
-            "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
-        ),
+        cfg=ndem_config_json,
     shell:
         "NUMBA_NUM_THREADS={threads} python -m dozerlab simulate --bed {input.bed:q} --trajectory {input.trajectory:q}"
         " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth}"
@@ -48,9 +46,7 @@ rule twin:
     resources:
         **cluster.job_resources(config, "twin"),
     params:
-        cfg=lambda wc: config_json(
-            "seed", "solver", "material", "bed", "scenarios", "blade", "sampling", scenario=wc.scenario
-        ),
+        cfg=ndem_config_json,
         jitter=config["reduced"]["twin"]["jitter_m"],
         seed=config["reduced"]["twin"]["seed"],
     shell:
@@ -58,6 +54,21 @@ rule twin:
         " --scenario {wildcards.scenario} --speed {wildcards.speed} --depth {wildcards.depth}"
         " --jitter {params.jitter} --jitter-seed {params.seed}"
         " --config {params.cfg:q} --out {output.store:q} --state {output.state:q} --threads {threads} > {log:q} 2>&1"
+
+
+# NDEM's expected run (reduced.twin.draws > 1): draw k of the twin from the jitter seed seed + k - 1.
+use rule twin as twin_draw with:
+    output:
+        store=directory(P.pattern("twin_draw")),
+        state=P.pattern("twin_draw_state"),
+    benchmark:
+        P.pattern("twin_draw_benchmark")
+    log:
+        f"logs/twin/{{scenario}}/{P.POINT_STEM}_draw~{{draw}}.log",
+    params:
+        cfg=ndem_config_json,
+        jitter=config["reduced"]["twin"]["jitter_m"],
+        seed=lambda wc: config["reduced"]["twin"]["seed"] + int(wc.draw) - 1,
 
 
 # On request only (not part of `all`): field slices, the force plot and a GIF of one store.

@@ -135,7 +135,9 @@ def _simulate(
         config,
         name,
         rule=rule,
-        tags={"scenario": scenario, "speed": speed, "depth": depth},
+        # a twin's draws (reduced.twin.draws) share its name: their seeds tell them apart
+        tags={"scenario": scenario, "speed": speed, "depth": depth}
+        | ({} if jitter is None else {"jitter_seed": jitter.seed}),
         params=params,
     ) as run:
         stats = drive(bed, traj, config, grid, attrs, out, vtk_dir, log_every, state_out)

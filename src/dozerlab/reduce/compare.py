@@ -32,7 +32,13 @@ Per point (both runs start from the same settled bed and follow the same traject
 - **twin and skill**: with the point's twin (NDEM from the bed with every grain moved by a
   micrometre, ``reduced.twin``) the twin is measured against NDEM the same way, over the same
   rows (``twin_<figure>``), and each figure's skill is the run's over the twin's
-  (``<figure>_skill``: accuracy / twin's accuracy, error / twin's error; :data:`FIGURES`).
+  (``<figure>_skill``: accuracy / twin's accuracy, error / twin's error; :data:`FIGURES`);
+- **NDEM's expected run**: with more twin draws (``reduced.twin.draws``) the twin's figures are
+  their means, and the run and NDEM's own run are both measured against the draws' mean
+  low-passed pushing force and mean smoothed surface, the estimate of the run NDEM's chaos
+  scatters about (``expected_<figure>``, ``ndem_expected_<figure>`` and their ratio
+  ``expected_<figure>_skill``; :data:`EXPECTED_FIGURES`): a model that predicts the expected
+  run scores below 1, where against one draw even a perfect one scores about 1/√2 of a twin.
 """
 
 from __future__ import annotations
@@ -268,6 +274,9 @@ FIGURES = {
     "density_rel_l2": "error",
     "final_emd_m": "error",
 }
+#: The figures measured against NDEM's expected run (the mean over the twin draws), both kinds as
+#: in :data:`FIGURES`.
+EXPECTED_FIGURES = {"surface_accuracy": "accuracy", "force_lp_rel_rmse": "error"}
 #: The window (s) of the low-passed pushing force: the scale NDEM's force reproduces.
 FORCE_WINDOW = 0.1
 
@@ -396,17 +405,42 @@ def against_ndem(
         "velocity_error": ev,
         "density_error": er,
         "height": h,
+        "surface": surface,
         "moved": moved,
     }
     return figures, series
 
 
-def skills(run: Mapping[str, Any], twin: Mapping[str, Any]) -> dict[str, float | None]:
-    """``<figure>_skill``: each of :data:`FIGURES` of a run over the twin's (model accuracy /
-    twin accuracy, model error / twin error); None where either is missing, not finite, or the
+def against_expected(
+    ref: Reference,
+    force: np.ndarray,
+    surface: np.ndarray,
+    draws: Sequence[Mapping[str, np.ndarray]],
+    rows: slice,
+) -> dict[str, float]:
+    """The :data:`EXPECTED_FIGURES` of one run against NDEM's expected run, estimated by the
+    mean of ``draws`` (each run's :func:`against_ndem` series: ``force`` (T, 3) N, ``surface``
+    (Sx, Sy) m): the low-passed pushing force over ``rows`` against the draws' mean force (the
+    mean of their low-passed forces) and the smoothed surface ``surface`` against their mean
+    surface, from the bed's (``ref``)."""
+    if not draws:
+        raise ValueError("NDEM's expected run needs at least one draw")
+    mean_force = np.mean([d["force"] for d in draws], axis=0)
+    mean_surface = np.mean([d["surface"] for d in draws], axis=0)
+    return {
+        "surface_accuracy": height_accuracy(surface, mean_surface, ref.surface_bed),
+        "force_lp_rel_rmse": force_lp_rel_rmse(force, mean_force, ref.row_dt, rows),
+    }
+
+
+def skills(
+    run: Mapping[str, Any], twin: Mapping[str, Any], figures: Mapping[str, str] = FIGURES
+) -> dict[str, float | None]:
+    """``<figure>_skill``: each of ``figures`` of a run over the twin's (model accuracy / twin
+    accuracy, model error / twin error); None where either is missing, not finite, or the
     twin's is 0."""
     out: dict[str, float | None] = {}
-    for key in FIGURES:
+    for key in figures:
         a, b = run.get(key), twin.get(key)
         if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) or b == 0:
             out[f"{key}_skill"] = None
@@ -426,6 +460,7 @@ def compare_point(
     ndem_benchmark: str | Path | None = None,
     reduced_job_s: float | None = None,
     twin: tuple[str | Path, str | Path] | None = None,
+    draws: Sequence[tuple[str | Path, str | Path]] = (),
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The metrics of one point (module doc) and the series its plots draw.
 
@@ -434,6 +469,10 @@ def compare_point(
 
     ``twin``: the point's twin NDEM run (its store and final state), measured against NDEM over
     the same rows: ``twin_<figure>`` and ``<figure>_skill`` (:func:`skills`) join the metrics.
+    ``draws``: the point's further twin draws (each a store and final state; with ``twin``
+    only): ``twin_<figure>`` are then the means over every draw, ``twin_draws`` their number,
+    and the run and NDEM's own run are measured against their mean (:func:`against_expected`):
+    ``expected_<figure>``, ``ndem_expected_<figure>``, ``expected_<figure>_skill``.
 
     Returns (metrics, series): series holds ``time`` (T,), ``force_ndem``/``force_reduced``
     (and ``force_twin``) (T, 3) N, ``force_window`` (s), ``velocity_error``/``density_error``
@@ -494,16 +533,33 @@ def compare_point(
         "height_reduced": run["height"].mean(axis=1),
         "warmup": np.array(warm),
     }
+    if draws and twin is None:
+        raise ValueError("further twin draws need the twin itself")
     if twin is not None:
-        td = open_store(twin[0])
-        if ref.sizes != {str(k): int(v) for k, v in td.sizes.items()}:
-            raise DozerlabError(
-                f"{twin[0]} ({dict(td.sizes)}) is not aligned with {ndem_store} ({ref.sizes})"
-            )
-        twin_figures, twin_run = against_ndem(ref, td, Bed.load(twin[1]), tail)
+        measured = []
+        for store_path, state_path in (twin, *draws):
+            td = open_store(store_path)
+            if ref.sizes != {str(k): int(v) for k, v in td.sizes.items()}:
+                raise DozerlabError(
+                    f"{store_path} ({dict(td.sizes)}) is not aligned with {ndem_store} "
+                    f"({ref.sizes})"
+                )
+            measured.append(against_ndem(ref, td, Bed.load(state_path), tail))
+        twin_figures = measured[0][0]
+        if len(measured) > 1:
+            twin_figures = {k: float(np.mean([m[k] for m, _ in measured])) for k in twin_figures}
         metrics |= {f"twin_{k}": v for k, v in twin_figures.items()}
         metrics |= skills(figures, twin_figures)
+        twin_run = measured[0][1]
         series |= {"force_twin": twin_run["force"], "height_twin": twin_run["height"].mean(axis=1)}
+        if draws:
+            runs = [r for _, r in measured]
+            mine = against_expected(ref, run["force"], run["surface"], runs, tail)
+            ndem = against_expected(ref, ref.force, ref.surface_ndem, runs, tail)
+            metrics["twin_draws"] = len(runs)
+            metrics |= {f"expected_{k}": v for k, v in mine.items()}
+            metrics |= {f"ndem_expected_{k}": v for k, v in ndem.items()}
+            metrics |= {f"expected_{k}": v for k, v in skills(mine, ndem, EXPECTED_FIGURES).items()}
     return metrics, series
 
 

@@ -46,10 +46,14 @@ _FIGURES = (
     "density_rel_l2",
     "final_emd_m",
 )
+#: Those measured against NDEM's expected run too (dozerlab.reduce.compare.EXPECTED_FIGURES).
+_EXPECTED = ("surface_accuracy", "force_lp_rel_rmse")
 AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
     **dict.fromkeys(_FIGURES, np.mean),
     **{f"twin_{k}": np.mean for k in _FIGURES},
     **{f"{k}_skill": np.mean for k in _FIGURES},
+    **{f"{who}{k}": np.mean for k in _EXPECTED for who in ("expected_", "ndem_expected_")},
+    **{f"expected_{k}_skill": np.mean for k in _EXPECTED},
     "max_overlap_loop": np.max,
     "max_overlap_final": np.max,
     "body_depth_final_m": np.max,
@@ -228,7 +232,9 @@ def compare_job(
     (:func:`dozerlab.reduce.compare.transfer_gap`: the surface skill on unseen terrain against
     the seen shapes'). With ``reduced.twin.enabled`` each point's twin
     NDEM run (``results/twins/…``) is measured too: the twin's figures and the skills
-    (:func:`dozerlab.reduce.compare.skills`). Logged as an MLflow run with the plots.
+    (:func:`dozerlab.reduce.compare.skills`), and with ``reduced.twin.draws`` > 1 every draw,
+    each run also against NDEM's expected run (their mean) beside NDEM's own run. Logged as an
+    MLflow run with the plots.
     """
     check_name(dynamics_model, "--dynamics-model")
     with job_outputs(("--out", out, COMPARISON_JSON), ("--plots", plots, COMPARISON_PLOTS)):
@@ -259,6 +265,7 @@ def _compare(
         raise DozerlabError("the config's sweep has no held-out points to compare on")
     targets = config["reduced"]["targets"]
     twins = bool(config["reduced"]["twin"]["enabled"])
+    n_draws = int(config["reduced"]["twin"]["draws"])
     entries: list[dict[str, Any]] = []
     # one reduce job ran every held-out point (rule reduce): each point's share of it
     shares = job_shares(
@@ -280,7 +287,7 @@ def _compare(
             for point, share in zip(held_out, shares, strict=True):
                 ndem_store = P.field_path(results, point)
                 reduced_store = P.reduced_path(results, dynamics_model, point)
-                twin = (P.twin_path(results, point), P.twin_path(results, point, "npz"))
+                twin, *draws = P.twin_draws(results, point, n_draws)
                 metrics, series = compare_point(
                     ndem_store,
                     reduced_store,
@@ -291,6 +298,7 @@ def _compare(
                     ndem_benchmark=P.simulate_benchmark_path(results, point),
                     reduced_job_s=share,
                     twin=twin if twins else None,
+                    draws=draws if twins else (),
                 )
                 stem = f"{point.scenario}_{point.name}"
                 files = [

@@ -174,3 +174,42 @@ def test_a_comparison_with_unseen_terrain_shows_its_skill_beside_the_seen_shapes
     text = reduced.render(report_context(CFG, tmp_path))
     assert "surface skill, unseen terrain / seen" in text
     assert table_cells(text, 0)[-1] == "0.54 / 0.72 (beyond 0.1)"
+
+
+def test_with_twin_draws_the_runs_stand_against_ndems_expected_run(tmp_path):
+    """reduced.twin.draws > 1: a table per model of each run against the draws' mean, beside
+    NDEM's own run against it, and the expected-run force skill in the models table."""
+    reduced_json(tmp_path, "ridge")
+    path = tmp_path / "reduced" / "ridge.json"
+    doc = json.loads(path.read_text())
+    for p in doc["points"]:
+        p |= {
+            "twin_draws": 4,
+            "expected_surface_accuracy": 0.8,
+            "ndem_expected_surface_accuracy": 0.95,
+            "expected_surface_accuracy_skill": 0.8 / 0.95,
+            "expected_force_lp_rel_rmse": 0.05,
+            "ndem_expected_force_lp_rel_rmse": 0.1,
+            "expected_force_lp_rel_rmse_skill": 0.5,
+        }
+    path.write_text(json.dumps(doc))
+    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
+    text = reduced.render(report_context(cfg, tmp_path)).replace("&#x27;", "'")
+    assert "Against NDEM's expected run, the mean of 4 twin draws" in text
+    headings = re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", text)
+    assert "force skill, expected run (×)" in headings
+    assert table_cells(text, 0)[8] == "0.50"  # after the twin's force figure and its skill
+    expected = re.findall(r"<table>(.*?)</table>", text, re.S)[2]
+    assert re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", expected)[2:] == [
+        "smoothed-surface accuracy (%)",
+        "NDEM's run (%)",
+        "skill (×)",
+        "low-passed force x rel. RMSE (%)",
+        "NDEM's run (%)",
+        "skill (×)",
+    ]
+    assert table_cells(text, 2)[2:] == ["80.0", "95.0", "0.84", "5.0", "10.0", "0.50"]
+    # without draws, neither the table nor the column
+    reduced_json(tmp_path / "one", "ridge")
+    text = reduced.render(report_context(cfg, tmp_path / "one"))
+    assert "expected run" not in text
