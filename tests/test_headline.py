@@ -37,6 +37,8 @@ def test_metrics_and_summary_from_the_results(tmp_path):
         "surface_accuracy_skill": 0.8,
         "height_accuracy": 0.85,
         "force_x_rel_rmse": 0.2,
+        "force_lp_rel_rmse": 0.1,
+        "expected_force_lp_rel_rmse_skill": 0.6,  # with twin draws
         "loop_speedup": 40.0,
         "velocity_rel_l2": 0.3,  # not a headline figure
     }
@@ -51,6 +53,7 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     assert got["reduced_ridge/height_accuracy"] == 0.85
     assert got["reduced_ridge/twin_surface_accuracy"] == 0.9
     assert got["reduced_ridge/surface_accuracy_skill"] == 0.8
+    assert got["reduced_ridge/expected_force_lp_rel_rmse_skill"] == 0.6
     assert "reduced_ridge/velocity_rel_l2" not in got
     assert (got["reduced_ridge/targets_met"], got["reduced_ridge/targets_missed"]) == (3.0, 1.0)
     assert not any(k.startswith("reduced_replay") for k in got)  # not built: left out
@@ -64,6 +67,7 @@ def test_metrics_and_summary_from_the_results(tmp_path):
     )
     assert lines[3].endswith(
         "ridge on 2 held-out points: smoothed-surface accuracy 72 % (twin 90 %, skill 0.80), "
+        "low-passed force x rel. RMSE 10 % (0.60 against NDEM's expected run), "
         "height accuracy 85 %, force x rel. RMSE 20 %, least loop speed-up 40.0x"
     )
     assert lines[4].endswith("targets met: surface_skill; missed: loop_speedup (1 of 2)")

@@ -25,7 +25,8 @@ from dozerlab import sweep as P
 
 #: The reduced simulation's figures on the parent run: (key in the comparison's
 #: ``overall.all``, what it is). On the scales NDEM reproduces each is followed by the twin's
-#: (NDEM again from the bed moved by a micrometre) and the skill, the model's over the twin's.
+#: (NDEM again from the bed moved by a micrometre) and the skill, the model's over the twin's,
+#: and with more twin draws the force's skill against NDEM's expected run (their mean).
 REDUCED_FIGURES = {
     "surface_accuracy": "smoothed-surface accuracy",
     "twin_surface_accuracy": "twin",
@@ -33,6 +34,7 @@ REDUCED_FIGURES = {
     "force_lp_rel_rmse": "low-passed force x rel. RMSE",
     "twin_force_lp_rel_rmse": "twin",
     "force_lp_rel_rmse_skill": "skill",
+    "expected_force_lp_rel_rmse_skill": "skill against NDEM's expected run",
     "force_mean_rel_err": "mean force x rel. error",
     "twin_force_mean_rel_err": "twin",
     "height_accuracy": "height accuracy",
@@ -143,6 +145,8 @@ def _said(key: str, f: Mapping[str, float]) -> str:
         beside.append(f"twin {_pct(twin)}")
     if (skill := f.get(f"{key}_skill")) is not None:
         beside.append(f"skill {skill:.2f}")
+    if (skill := f.get(f"expected_{key}_skill")) is not None:
+        beside.append(f"{skill:.2f} against NDEM's expected run")
     return text + (f" ({', '.join(beside)})" if beside else "")
 
 
