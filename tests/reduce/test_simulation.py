@@ -98,6 +98,23 @@ def test_grains_above_the_volume_ride_with_its_top_and_fall_until_held_up():
     assert state.x[1, 2] > x[1, 2]
 
 
+def test_the_piles_crest_rises_with_the_top_bins_up_to_crest_bins_above_the_volume():
+    """Within reduced.crest_bins of the volume's top (0.9 m, bins of 0.1 m) a grain the top bins
+    lift rises with them; higher up, or where they sink, it falls; crest_bins 0: all fall."""
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    tip = np.array([0.0, 0.0, 0.5])
+    x = np.array([[0.2, -0.1, 0.95], [0.2, 0.1, 1.05]])  # half a bin and 1.5 bins above the top
+    h, g = 0.01, 9.81
+    for lift, crest, rising in ((0.5, 1.0, [True, False]), (-0.5, 1.0, [False, False])):
+        field = np.zeros((*grid.bins, 3))
+        field[..., 0], field[..., 2] = 1.0, lift
+        for bins, expect in ((crest, rising), (0.0, [False, False])):
+            state = _state(x, np.zeros_like(x), grid, ReducedSettings(crest_bins=bins))
+            state.step(field, np.full(grid.bins, 1500.0), tip, h)
+            vz = np.where(expect, lift, -g * h)
+            np.testing.assert_allclose(state.x, x + h * np.c_[np.ones(2), np.zeros(2), vz])
+
+
 def test_the_fields_edge_carries_grains_ahead_of_and_beside_the_volume():
     # one grain a bin ahead of the volume's front and one a bin beyond its side (past the
     # blade's end), both within reduced.advect_margin (2 bins), move with the edge bins; one

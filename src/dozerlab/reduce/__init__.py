@@ -8,6 +8,7 @@
 LOOP_FIELDS = (
     "projection",
     "advect_margin",
+    "crest_bins",
     "rest_speed",
     "support_angle",
     "divergence_overlap",
