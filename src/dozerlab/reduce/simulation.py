@@ -107,7 +107,7 @@ class ReducedSettings:
     tolerance: float = 0.02
     overlap_limit: float = 0.1
     advect_margin: float = 2.0
-    crest_bins: float = 0.5
+    crest_bins: float = 0.0
     rest_speed: float = 0.05
     support_angle: float = 60.0
     divergence_overlap: float = 0.5
