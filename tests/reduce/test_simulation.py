@@ -149,18 +149,27 @@ def test_no_pair_ends_a_step_overlapping_more_than_the_loop_reports():
     assert worst <= 0.1
 
 
-def test_a_grain_moved_past_the_ring_has_its_overlap_counted_over_the_whole_bed():
+@pytest.mark.parametrize(("limit", "back"), [(10.0, False), (0.1, True)])
+def test_a_grain_moved_past_the_ring_is_counted_over_the_whole_bed_or_goes_back(limit, back):
     # the field throws the grain 0.136 m (beyond the two selection cells of 0.05 m that the
-    # projection reaches) onto a resting grain three cells away, 0.3 radius deep
+    # projection reaches) onto a resting grain three cells away, 0.3 radius deep: counted over
+    # the whole bed, it is the step's largest overlap; above overlap_limit the grain goes back
+    # to where it started the step, without velocity
     grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
     x = np.array([[0.30, 0.0, 0.02], [0.47, 0.0, 0.02]])
     field = np.zeros((*grid.bins, 3))
     field[..., 0] = 13.6
-    state = _state(x, np.zeros_like(x), grid, ReducedSettings(advect_margin=0.0))
+    settings = ReducedSettings(advect_margin=0.0, overlap_limit=limit)
+    state = _state(x, np.zeros_like(x), grid, settings)
     stats = state.step(field, np.full(grid.bins, 1500.0), np.zeros(3), 0.01)
     assert state.beyond_ring == 1
     assert stats.max_overlap == pytest.approx(largest_overlap(state.x, state.r), abs=1e-12)
-    assert stats.max_overlap == pytest.approx(0.3, abs=1e-6)
+    if back:
+        np.testing.assert_array_equal(state.x, x)
+        np.testing.assert_array_equal(state.v, 0.0)
+        assert stats.max_overlap == 0.0
+    else:
+        assert stats.max_overlap == pytest.approx(0.3, abs=1e-6)
 
 
 def test_flow_is_the_fields_velocity_not_the_projections_push():
