@@ -541,13 +541,40 @@ def test_twin_runs_join_the_workflow_only_when_enabled(tmp_path):
         assert jobs.count("simulate") == 6  # NDEM's own runs, with or without twins
 
 
-def test_the_targets_reach_only_the_comparison_and_the_report(tmp_path):
+#: An adaptive sweep of one round over the quick sweep's ranges (its rules in the dry run).
+ADAPTIVE = {
+    "enabled": True,
+    "rounds": 1,
+    "per_round": 1,
+    "candidates": {"kind": "lattice", "count": 3},
+    "min_spacing": 0.5,
+}
+TARGETS = {"reduced": {"targets": {"force_skill": 0.5, "loop_speedup": 7}}}
+DRAWS = {"reduced": {"twin": {"enabled": True, "draws": 3}}}
+
+
+@pytest.mark.parametrize(
+    ("change", "adaptive", "changed"),
+    [
+        # only compare-reduced and the report read the targets
+        (TARGETS, False, {"compare-reduced", "report"}),
+        # the twins' draws: new NDEM runs (twin_draw), read by compare-reduced and the report ...
+        (DRAWS, False, {"simulate", "compare-reduced", "report"}),
+        # ... but not by the adaptive curve and records, which read draw 1 alone
+        (DRAWS, True, set()),
+    ],
+    ids=["targets", "twin draws", "twin draws, adaptive"],
+)
+def test_a_setting_reaches_only_the_commands_that_read_it(tmp_path, change, adaptive, changed):
     """Changing only reduced.targets re-ran six jobs: a rule reruns when its params (the
-    --config it passes) change, and only compare-reduced and the report read the targets."""
-    quick = yaml.safe_load(QUICK.read_text())
+    --config it passes) change, so each passes only what its command reads."""
     commands = {}
-    for name, targets in (("before", {}), ("after", {"force_skill": 0.5, "loop_speedup": 7})):
-        quick["reduced"]["targets"] = targets
+    for name, extra in (("before", {}), ("after", change)):
+        quick = yaml.safe_load(QUICK.read_text())
+        if adaptive:
+            quick["sweep"]["adaptive"] = ADAPTIVE
+        for section, fields in extra.items():
+            quick[section].update(fields)
         cfg = tmp_path / f"{name}.yaml"
         cfg.write_text(yaml.safe_dump(quick))
         done = snakemake(tmp_path, "-n", "-p", configfile=cfg)
@@ -557,8 +584,11 @@ def test_the_targets_reach_only_the_comparison_and_the_report(tmp_path):
             commands[name].setdefault(line.split()[3], set()).add(line)
     before, after = commands["before"], commands["after"]
     assert before.keys() == after.keys()
-    assert {c for c in before if before[c] != after[c]} == {"compare-reduced", "report"}
-    assert {"reduce-points", "train", "simulate"} <= before.keys()
+    assert {c for c in before if before[c] != after[c]} == changed
+    assert {"train", "simulate"} <= before.keys()
+    assert ({"adaptive-record", "adaptive-curve"} <= before.keys()) == adaptive
+    if "simulate" in changed:  # NDEM's own runs unchanged, the draws added
+        assert before["simulate"] < after["simulate"]
 
 
 def test_lint_finds_nothing_but_the_per_rule_environments(tmp_path):

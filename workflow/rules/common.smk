@@ -69,7 +69,8 @@ def config_json(*sections, scenario=None, fields=None):
 
     A rule reruns when its params change, so each rule passes only what its command reads;
     with ``scenario``, the ``scenarios`` section holds only that scenario's shape; ``fields``
-    maps a section to the only fields of it the command reads.
+    maps a section to the only fields of it the command reads ("twin.enabled": one field of a
+    subsection).
     """
     doc = {name: config[name] for name in sections}
     if scenario is not None and "scenarios" in doc:
@@ -82,7 +83,15 @@ def config_json(*sections, scenario=None, fields=None):
             doc["scenarios"] = {s: config["scenarios"][s] for s in sorted(own)}
             doc.setdefault("bed", config["bed"])
     for name, keep in (fields or {}).items():
-        doc[name] = {k: v for k, v in doc[name].items() if k in keep}
+        kept = {}
+        for key, value in doc[name].items():
+            if key in keep:
+                kept[key] = value
+            elif isinstance(value, dict):
+                sub = {k: v for k, v in value.items() if f"{key}.{k}" in keep}
+                if sub:
+                    kept[key] = sub
+        doc[name] = kept
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
 
 
@@ -379,8 +388,9 @@ def print_summary():
 # An adaptive sweep's config and input functions (the rules are in adaptive.smk).
 ADAPTIVE = config["sweep"]["adaptive"]
 ADAPTIVE_ROUNDS = list(range(ADAPTIVE["rounds"] + 1))
-# What the curve and the records read of the reduced section: which loops, their force model kind, twins.
-REDUCED_CURVE_FIELDS = ["dynamics_models", "force_model", "twin"]
+# What the curve and the records read of the reduced section: which loops, their force model
+# kind, whether twins run (not their draws: they read draw 1, so more draws rerun neither).
+REDUCED_CURVE_FIELDS = ["dynamics_models", "force_model", "twin.enabled"]
 if ADAPTIVE["enabled"] and not HELD_OUT:
     # the rounds' errors and the learning curve are measured on them
     raise runtime.ConfigError(
