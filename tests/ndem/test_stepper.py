@@ -295,6 +295,25 @@ def test_active_zone_wakes_a_sleeping_grain_that_a_moving_one_reaches():
     assert w.positions[1, 0] > x1 + 0.03  # hit, woken and pushed on
 
 
+def test_active_zone_solves_a_jam_again_with_the_sleeper_it_wakes():
+    # the blade (no margin) drives a grain at 2 m/s into a sleeping one: held rigid, it would
+    # take 0.4 radius of overlap in one step; loaded, it wakes and, the step heading past
+    # relinearize_above, the step is solved again with it, so both are pushed along
+    w = World(active_zone=True, zone_margin=0.0, rest_time=0.05)
+    w.add_plane()
+    w.add_spheres([[0.3, 0.0, R], [0.3 + 2 * R, 0.0, R]], radius=R)
+    blade = w.add_box((0.3 - R - 0.05, 0.0, 0.1), (0.05, 0.2, 0.1), kinematic=True)
+    w.step(15)
+    assert w.state.public(w.state.awake).tolist() == [True, False]
+    w.set_velocity(blade, (2.0, 0.0, 0.0))
+    worst = 0.0
+    for _ in range(10):
+        w.step(1)
+        worst = max(worst, w.last_stats.max_overlap_fraction)
+    assert worst < 0.1
+    assert w.positions[1, 0] > 0.3 + 2 * R + 0.15  # the sleeper woke and was pushed on
+
+
 def test_active_zone_lets_a_grain_sleep_only_after_rest_time_at_rest_outside_it():
     w = World(active_zone=True, zone_margin=0.2, rest_time=0.1)
     w.add_plane()

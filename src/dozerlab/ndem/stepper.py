@@ -114,16 +114,20 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         )
         v0, w0 = state.v.copy(), state.w.copy()
     while True:
-        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps, rounds = _solve_awake(
+        solved = _solve_awake(
             state, bodies, p, cells, start, dims, reach, slab, n_slabs, rot, body_reach
         )
+        ci, cj, cd, lam, (frac_max, touching, gap_max), residual, sweeps, rounds, deepest = solved
         if not p.active_zone:
             break
-        # a sleeper that the awake grains now load beyond what holds it still wakes, and the
-        # step is solved again with it: a grain jammed between the blade and a rigid sleeper
-        # would otherwise sink into it by the blade's travel every step
+        # A sleeper that the awake grains now load beyond what holds it still wakes. The step
+        # is solved again with it only where some pair heads past solver.relinearize_above: a
+        # grain jammed between the blade and a rigid sleeper would sink into it by the blade's
+        # travel every step. Solved again for every woken sleeper, the pile's push woke them
+        # step after step and hill 0.875/0.045 ran 4.7x slower than the full solve (BENCHMARKS.md).
         held = state.warm.held(state.public(~state.awake))[state.id]
-        if not _wake_loaded(state.awake, state.rest, ci, cj, lam, held):
+        woke = _wake_loaded(state.awake, state.rest, ci, cj, lam, held)
+        if not woke or deepest <= p.relinearize_above:
             break
         state.v[:], state.w[:] = v0, w0
     if p.active_zone:
@@ -171,12 +175,14 @@ def _solve_awake(
     rot: np.ndarray,
     body_reach: np.ndarray,
 ) -> tuple[
-    np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int, int
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float], float, int, int, float
 ]:
     """Detect, assemble and solve the contacts of the awake spheres (all of them without the
     active zone), gravity applied to them; velocities updated in place. Returns i, j, the
     contact table, the multipliers, :func:`_check_overlap`'s figures, the residual (m/s), the
-    sweeps run and the ``relinearize`` rounds run."""
+    sweeps run, the ``relinearize`` rounds run and, with the active zone, the largest overlap
+    over the smaller radius a pair reaches by the end of the step (:func:`solver.deepest_end`;
+    0 without it)."""
     h = p.dt
     invm = 1.0 / state.m
     invI = 1.0 / (0.4 * state.m * state.r**2)
@@ -266,7 +272,13 @@ def _solve_awake(
             )
             sweeps += more
             ran += 1
-    return ci, cj, cd, lam, overlap, float(residual), int(sweeps), ran
+    # where the active zone's woken sleepers would have the step solved again (_advance)
+    deepest = (
+        solver.deepest_end(ci, cj, cd, gap, state.v, state.r, h, swept)
+        if awake is not None
+        else 0.0
+    )
+    return ci, cj, cd, lam, overlap, float(residual), int(sweeps), ran, float(deepest)
 
 
 @njit(cache=True)
