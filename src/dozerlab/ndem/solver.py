@@ -317,13 +317,14 @@ def _end_overlap(k, ci, cj, cd, gap, v, r, h):
 
 
 @njit(cache=True)
-def deepest_end(ci, cj, cd, gap, v, r, h, swept):
+def deepest_end(ci, cj, cd, gap, v, r, h, swept, compliant=True):
     """The largest overlap over the smaller radius that a compliant Hertz row's pair reaches by
     the end of the step, g − h·uₙ with the solved velocities (0 if none), over the first
-    ``swept`` rows: what :func:`stiffen` reads, to tell a step that needs its rounds."""
+    ``swept`` rows: what :func:`stiffen` reads, to tell a step that needs its rounds; with
+    ``compliant`` False, over every row (stiff contacts too)."""
     worst = 0.0
     for k in range(swept):
-        if cd[k, SIG] <= 0.0 or cd[k, KN] <= 0.0:
+        if compliant and (cd[k, SIG] <= 0.0 or cd[k, KN] <= 0.0):
             continue
         g_end, rmin = _end_overlap(k, ci, cj, cd, gap, v, r, h)
         worst = max(worst, g_end / rmin)

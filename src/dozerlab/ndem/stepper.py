@@ -274,7 +274,7 @@ def _solve_awake(
             ran += 1
     # where the active zone's woken sleepers would have the step solved again (_advance)
     deepest = (
-        solver.deepest_end(ci, cj, cd, gap, state.v, state.r, h, swept)
+        solver.deepest_end(ci, cj, cd, gap, state.v, state.r, h, swept, False)
         if awake is not None
         else 0.0
     )
