@@ -314,6 +314,35 @@ def test_active_zone_solves_a_jam_again_with_the_sleeper_it_wakes():
     assert w.positions[1, 0] > 0.3 + 2 * R + 0.15  # the sleeper woke and was pushed on
 
 
+@pytest.mark.parametrize(
+    ("density", "wake_load", "wakes"), [(1.5, 1.0, True), (1.5, 2.0, False), (3.0, 2.0, True)]
+)
+def test_active_zone_wakes_a_sleeper_whose_load_passes_wake_load_times_what_holds_it(
+    density, wake_load, wakes
+):
+    # a grain set down at rest on a sleeper loads it with its own weight, ``density`` times
+    # the sleeper's, which its contact with the ground carried alone
+    w = World(active_zone=True, rest_time=0.05, wake_load=wake_load)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R]], radius=R)
+    w.step(10)
+    assert not w.state.awake.any()
+    w.add_spheres([[0.0, 0.0, 3 * R]], radius=R, density=density * w.density)
+    w.step(1)
+    assert w.state.public(w.state.awake).tolist() == [wakes, True]
+
+
+def test_switching_the_active_zone_off_wakes_every_sleeper():
+    w = World(active_zone=True, rest_time=0.05)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R], [0.5, 0.0, R]], radius=R)
+    w.step(10)
+    assert w.last_stats.active == 0
+    w.active_zone = False
+    w.step(1)
+    assert w.last_stats.active == 2 and w.state.awake.all() and not w.state.rest.any()
+
+
 def test_active_zone_lets_a_grain_sleep_only_after_rest_time_at_rest_outside_it():
     w = World(active_zone=True, zone_margin=0.2, rest_time=0.1)
     w.add_plane()
@@ -341,7 +370,8 @@ def test_active_zone_reads_its_config_section():
     from dozerlab.config import load_config
     from dozerlab.ndem.params import Parameters
 
-    zone = {"enabled": True, "margin": 0.5, "rest_speed": 0.01, "rest_time": 0.2}
+    zone = {"enabled": True, "margin": 0.5, "rest_speed": 0.01, "rest_time": 0.2, "wake_load": 3}
     p = Parameters.from_config(load_config({"solver": {"active_zone": zone}}))
     assert (p.active_zone, p.zone_margin, p.rest_speed, p.rest_time) == (True, 0.5, 0.01, 0.2)
+    assert p.wake_load == 3.0
     assert Parameters().active_zone is False  # off by default: the full solve

@@ -37,6 +37,7 @@ ZONE_KEYS = {
     "margin": "zone_margin",
     "rest_speed": "rest_speed",
     "rest_time": "rest_time",
+    "wake_load": "wake_load",
 }
 MATERIAL_KEYS = (
     "density",
@@ -85,7 +86,9 @@ class Parameters:
     radius; slabs: parallel sweep partitions (the result depends on it, not on threads);
     warm_start: start from the last step's multipliers; active_zone: step only the grains that
     can move (``solver.active_zone``), grains at rest outside the moving boxes grown by
-    zone_margin (m) sleeping once slower than rest_speed (m/s) for rest_time (s).
+    zone_margin (m) sleeping once slower than rest_speed (m/s) for rest_time (s), and a sleeper
+    waking when the awake grains' normal impulses on it pass wake_load (≥ 1) times those of its
+    resting contacts.
     """
 
     dt: float = field(default_factory=_schema("dt"))
@@ -111,6 +114,7 @@ class Parameters:
     zone_margin: float = field(default_factory=_schema("zone_margin"))
     rest_speed: float = field(default_factory=_schema("rest_speed"))
     rest_time: float = field(default_factory=_schema("rest_time"))
+    wake_load: float = field(default_factory=_schema("wake_load"))
 
     def __post_init__(self) -> None:
         def put(name: str, value: object) -> None:
@@ -156,6 +160,9 @@ class Parameters:
         put("active_zone", bool(self.active_zone))
         for name in ("zone_margin", "rest_speed", "rest_time"):
             put(name, nonnegative(name, getattr(self, name)))
+        if not (np.isfinite(self.wake_load) and self.wake_load >= 1.0):
+            raise ValueError(f"wake_load must be >= 1, got {self.wake_load!r}")
+        put("wake_load", float(self.wake_load))
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> Parameters:

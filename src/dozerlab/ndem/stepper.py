@@ -95,6 +95,10 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
     rot = bodies.rotations()
     body_reach = 2.0 * (reach - state.r) + p.dt * body_speed
     zone = np.zeros(0, dtype=np.bool_)
+    if not p.active_zone and not state.awake.all():
+        # the zone switched off (a bed's pour ends): every sphere is stepped from here on
+        state.awake[:] = True
+        state.rest[:] = 0.0
     if p.active_zone:
         zone = _wake_zone(
             state.awake,
@@ -125,7 +129,7 @@ def _advance(state: WorldState, bodies: Bodies, p: Parameters) -> StepStats:
         # grain jammed between the blade and a rigid sleeper would sink into it by the blade's
         # travel every step. Solved again for every woken sleeper, the pile's push woke them
         # step after step and hill 0.875/0.045 ran 4.7x slower than the full solve (BENCHMARKS.md).
-        held = state.warm.held(state.public(~state.awake))[state.id]
+        held = p.wake_load * state.warm.held(state.public(~state.awake))[state.id]
         woke = _wake_loaded(state.awake, state.rest, ci, cj, lam, held)
         if not woke or deepest <= p.relinearize_above:
             break

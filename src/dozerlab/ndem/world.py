@@ -87,6 +87,7 @@ class World:
     zone_margin = _parameter("zone_margin")
     rest_speed = _parameter("rest_speed")
     rest_time = _parameter("rest_time")
+    wake_load = _parameter("wake_load")
 
     @property
     def time(self) -> float:
