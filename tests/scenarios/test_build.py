@@ -148,3 +148,21 @@ def test_a_profile_and_a_heightmap_are_built_to_their_shapes(terrain_beds):
     across = h.mean(axis=0)
     assert across[-1] > 1.4 * across[0]  # the heightmap's slope runs across the width, to +y
     assert len(bank.info["heightmap_sha256"]) == 64 and "heightmap_sha256" not in ridge.info
+
+
+def test_a_bed_poured_with_the_zone_steps_fewer_contacts_and_settles_whole(beds, small_config):
+    zoned = beds["hill"]  # bed.active_zone is on by default
+    whole = build_bed(
+        "hill",
+        load_config({**SMALL, "bed": {**SMALL["bed"], "active_zone": False}}),
+        progress=False,
+    )
+    pour = zoned.settle_time <= zoned.info["emission_time"]
+    same = whole.settle_time <= zoned.info["emission_time"]
+    # the grains at rest away from the strip sleep, their contacts left out of the solve
+    assert zoned.settle_contacts[pour].sum() < 0.8 * whole.settle_contacts[same].sum()
+    # after the last layer every grain is stepped for bed.awake_settle_time at least
+    settle = small_config["bed"]["awake_settle_time"]
+    assert zoned.info["time"] >= zoned.info["emission_time"] + settle
+    assert abs(zoned.count - whole.count) < 0.1 * whole.count
+    assert zoned.kinetic_energy_per_particle() < small_config["bed"]["settle_kinetic_energy"]

@@ -95,9 +95,13 @@ def config_json(*sections, scenario=None, fields=None):
     return json.dumps(doc, sort_keys=True, separators=(",", ":"))
 
 
-# The solver fields a bed or a trajectory reads: not the active zone, which only the blade's
-# pass uses (beds settle with every grain stepped), so switching it reruns no bed.
-BED_SOLVER_FIELDS = [k for k in config["solver"] if k != "active_zone"]
+# The solver fields a bed or a trajectory reads: of the active zone only when a grain sleeps
+# and wakes (a bed's pour, bed.active_zone), so switching the blade's zone reruns no bed.
+BED_SOLVER_FIELDS = [k for k in config["solver"] if k != "active_zone"] + [
+    "active_zone.rest_speed",
+    "active_zone.rest_time",
+    "active_zone.wake_load",
+]
 
 
 def reduce_config_json():

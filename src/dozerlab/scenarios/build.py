@@ -234,8 +234,11 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     defines, :mod:`dozerlab.terrain`) from a validated config.
 
     Uses ``bed.dt`` and ``bed.iterations`` for the solver, the ``solver`` section's gravity,
-    damping and overlap limit, ``material`` and ``seed``. The strip makes one pass; then the bed
-    settles until the mean kinetic energy per particle is below ``bed.settle_kinetic_energy``.
+    damping and overlap limit, ``material`` and ``seed``. The strip makes one pass, with
+    ``bed.active_zone`` the grains at rest asleep (``solver.active_zone``'s rest speed, rest
+    time and wake load); then the bed settles, every grain stepped (at least
+    ``bed.awake_settle_time`` with the zone), until the mean kinetic energy per particle is
+    below ``bed.settle_kinetic_energy``.
     Raises ConfigError if the terrain cannot be built (:func:`dozerlab.terrain.check_terrain`),
     DozerlabError if it has not settled ``bed.max_settle_time`` simulated seconds after the
     last layer, or a particle left the domain.
@@ -256,6 +259,10 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
         youngs_modulus=mat["youngs_modulus"],
         poisson_ratio=mat["poisson_ratio"],
         max_overlap=solver["max_overlap"],
+        active_zone=bool(b["active_zone"]),
+        rest_speed=solver["active_zone"]["rest_speed"],
+        rest_time=solver["active_zone"]["rest_time"],
+        wake_load=solver["active_zone"]["wake_load"],
     )
     add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
     # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
@@ -264,6 +271,10 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     )
     max_steps = emission_steps + int(np.ceil(float(b["max_settle_time"]) / dt))
     threshold = float(b["settle_kinetic_energy"])
+    # the grains slept under the layers laid on them compact once woken, a millimetre at speeds
+    # the kinetic energy does not see: the bed is stepped whole for a while first
+    awake_steps = int(np.ceil(float(b["awake_settle_time"]) / dt)) if b["active_zone"] else 0
+    woke = 0
     log_t: list[float] = []
     log_e: list[float] = []
     log_c: list[int] = []
@@ -282,6 +293,9 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
                 layers += 1
                 if emitter.done:
                     emission_time = (step + 1) * dt
+                    # the bed settles with every grain stepped: the runs start from it so
+                    world.active_zone = False
+                    woke = step
             stats = world.step(1)
             step += 1
             energy = _kinetic_energy(world)
@@ -293,12 +307,13 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
             if step % LOG_LINE_STEPS == 0:
                 # the rule's log: file shows progress even where the bar is off (--no-progress)
                 log.info(
-                    "bed %s step %d (t=%.2f s): %d particles, %d layers%s, kinetic energy %.3g J "
-                    "per particle (settled below %g), %.1f ms/step",
+                    "bed %s step %d (t=%.2f s): %d particles (%d awake), %d layers%s, kinetic "
+                    "energy %.3g J per particle (settled below %g), %.1f ms/step",
                     scenario,
                     step,
                     step * dt,
                     world.n_spheres,
+                    stats.active,
                     layers,
                     " (all)" if emitter.done else "",
                     energy,
@@ -306,7 +321,7 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
                     1e3 * (time.perf_counter() - start) / step,
                 )
             bar.update(1)
-            if emitter.done and energy < threshold:
+            if emitter.done and energy < threshold and step - woke > awake_steps:
                 break
             if not emitter.done and step >= emission_steps:
                 raise DozerlabError(
