@@ -71,7 +71,8 @@ class Bed:
     ``velocities`` and ``angular_velocities`` (N, 3) in m/s and rad/s. The bed spans
     x ∈ [0, length], y ∈ [-width/2, width/2] on the ground z = 0, inside the walls of
     :func:`dozerlab.scenarios.build.make_world`. The settle log samples the build every
-    ``bed.log_every`` steps: time (s), mean kinetic energy per particle (J), contact count.
+    ``bed.log_every`` steps: time (s), mean kinetic energy per particle (J), contacts solved
+    (those of awake grains while the pour sleeps the rest, ``bed.active_zone``).
     """
 
     scenario: str

@@ -79,7 +79,7 @@ def plot_trajectory(traj: Trajectory, path: str | Path) -> None:
 def bed_figure(bed: Bed) -> Figure:
     """A matplotlib figure of a bed: side view with every particle drawn to scale as a disc
     coloured by its y (thesis fig. 3.3–3.4), the bed's surface height seen from above, and the
-    settle log (kinetic energy per particle and contacts over time)."""
+    settle log (kinetic energy per particle and contacts solved over time)."""
     from matplotlib.collections import EllipseCollection
     from matplotlib.figure import Figure
 
@@ -143,7 +143,8 @@ def bed_figure(bed: Bed) -> Figure:
         ax.set_ylabel("kinetic energy\nper particle (J)", color="C0")
         twin = ax.twinx()
         twin.plot(bed.settle_time, bed.settle_contacts, color="C1", lw=0.8)
-        twin.set_ylabel("contacts", color="C1")
+        # while the pour sleeps the grains at rest (bed.active_zone) only the awake ones' count
+        twin.set_ylabel("contacts solved", color="C1")
     ax.set(xlabel="time (s)", title="build and settle log")
     return fig
 
