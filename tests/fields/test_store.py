@@ -117,6 +117,40 @@ def test_a_write_still_in_flight_is_waited_for_before_the_temporary_goes(tmp_pat
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_write_in_flight_when_the_closing_flush_is_interrupted_is_waited_for(
+    tmp_path, store_arrays, monkeypatch
+):
+    """The signal may land in the block's closing work (the last rows' write): the temporary
+    goes then too only once the write in flight is done (a killed workflow's simulate job left
+    one behind, the CI of d474424)."""
+    from dozerlab.fields import store
+
+    a = store_arrays
+    writer = FieldStoreWriter(tmp_path / "f.zarr", x=a["x"], y=a["y"], z=a["z"], attrs={})
+
+    write_all = store._write_all
+
+    def interrupted(parts, start=None) -> None:
+        if start is None:  # the empty store's metadata, made on entering
+            write_all(parts, start)
+            return
+        (tmp,) = tmp_path.glob(".f.zarr.tmp-*")
+
+        async def chunk_write() -> None:
+            await asyncio.sleep(0.3)
+            (tmp / "density" / "c").mkdir(parents=True, exist_ok=True)
+            (tmp / "density" / "c" / "0").write_bytes(b"late")
+
+        asyncio.run_coroutine_threadsafe(chunk_write(), zarr_sync._get_loop())
+        raise SystemExit(143)
+
+    monkeypatch.setattr(store, "_write_all", interrupted)
+    with pytest.raises(SystemExit), writer:
+        writer.append(0.0, *(a[k][0] for k in SCHEMA))
+    time.sleep(0.5)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_append_rejects_wrong_shape(tmp_path, store_arrays):
     a = store_arrays
     with (

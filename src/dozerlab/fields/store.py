@@ -437,6 +437,8 @@ class FieldStoreWriter:
                     warnings.simplefilter("ignore")
                     zarr.consolidate_metadata(self._group.store)
             except BaseException:
+                # a signal in the closing write leaves it running, as one in the block does
+                settle_zarr_io()
                 stack.__exit__(*sys.exc_info())
                 raise
         return bool(stack.__exit__(exc_type, exc, tb))
