@@ -123,6 +123,59 @@ def test_a_damaged_record_is_refused_by_name_and_kept_the_others_logged(workflow
     assert folder.is_dir() and list(children(client, parent)) == ["bed step"]
 
 
+STUBBORN = """
+import faulthandler, signal, time
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+faulthandler.register(signal.SIGUSR1, all_threads=True)
+print("ready", flush=True)
+def hang_in_a_record():
+    time.sleep(60)
+hang_in_a_record()
+"""
+
+
+def test_a_follower_that_does_not_stop_is_killed_with_its_stacks_in_its_log(tmp_path):
+    log = tmp_path / "ingest.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen([sys.executable, "-c", STUBBORN], stdout=out, stderr=out)
+    try:
+        deadline = time.monotonic() + 30
+        while "ready" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+        assert not spool.stop_follower(proc, within_s=0.5)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    assert "in hang_in_a_record" in log.read_text()
+
+
+def test_a_follower_asked_to_stop_while_it_starts_stops_by_itself(tmp_path, monkeypatch):
+    """SIGTERM from the moment its command runs, MLflow's imports included: the follower ends
+    by itself, having logged nothing, rather than being cut off at an arbitrary point."""
+    monkeypatch.setenv(spool.SPOOL_ENV, str(tmp_path / "spool"))
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path / 'mlflow.db'}")
+    script = (
+        "import os, signal, sys\n"
+        "from dozerlab import cli\n"
+        "sys.argv = ['dozerlab', 'mlflow-ingest', 'nothing', '--follow']\n"
+        "import dozerlab.spool as spool\n"
+        "stop_on_signals = spool.stop_on_signals\n"
+        "def asked_at_once():\n"
+        "    stop = stop_on_signals()\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    return stop\n"
+        "spool.stop_on_signals = asked_at_once\n"
+        "sys.exit(cli.main())\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "logged 0 job runs of workflow run nothing" in done.stderr
+
+
 @pytest.mark.slow  # a follower process and several jobs
 def test_the_follower_logs_runs_as_jobs_end_and_stops_on_sigterm(workflow, tmp_path):
     client, parent, _root = workflow

@@ -340,11 +340,30 @@ def simulating(workdir: Path, point: P.SweepPoint):
             proc.wait()
 
 
+def _ended(proc: subprocess.Popen, workdir: Path, timeout: float) -> str:
+    """Wait for the background Snakemake ``proc`` to end; return its stderr. One still running
+    after ``timeout`` seconds fails the test with the workflow's processes (the MLflow follower
+    runs in a session of its own) and the follower's log."""
+    try:
+        return proc.communicate(timeout=timeout)[1]
+    except subprocess.TimeoutExpired:
+        running = "\n".join(
+            f"{pid}: {cmd[:300]}"
+            for pid, cmd in _processes().items()
+            if "snakemake" in cmd or "dozerlab" in cmd
+        )
+        ingest = workdir / "logs" / "mlflow-ingest.log"
+        pytest.fail(
+            f"snakemake still running {timeout:g} s on; its session:\n{running}\n"
+            f"{ingest}:\n{ingest.read_text()[-3000:] if ingest.exists() else '(none)'}"
+        )
+
+
 def test_killed_simulation_is_redone_cleanly(quick):
     # A point outside the configured sweep: built by asking for its path.
     with simulating(quick, P.SweepPoint("hill", 1.1, 0.06)) as (proc, store, target, job):
         os.kill(job, signal.SIGKILL)  # the simulate process, mid-run
-        _, err = proc.communicate(timeout=120)
+        err = _ended(proc, quick, timeout=120)
     assert proc.returncode != 0, err[-3000:]
     assert not store.exists()
     _client, all_runs = runs(quick)
@@ -357,7 +376,7 @@ def test_killed_simulation_is_redone_cleanly(quick):
     assert done.returncode == 0, done.stderr[-3000:]
     ds = xr.open_zarr(store)
     assert ds.attrs["speed"] == 1.1 and ds.sizes["time"] > 0
-    assert not list(store.parent.glob("*.tmp-*"))
+    assert not list(store.parent.glob(f".{store.name}.tmp-*"))
 
 
 def _processes(session: int | None = None) -> dict[int, str]:
@@ -393,7 +412,7 @@ def test_killed_snakemake_leaves_no_orphan_and_its_run_is_closed(quick):
         proc.kill()  # Snakemake alone, as the OOM killer or `kill -9` would
         proc.communicate(timeout=60)
         assert _gone(job, within_s=20), "the simulate job runs on, orphaned"
-    assert not store.exists() and not list(store.parent.glob("*.tmp-*"))
+    assert not store.exists() and not list(store.parent.glob(f".{store.name}.tmp-*"))
     client, all_runs = runs(quick)
     dead = max(
         (r for r in all_runs if r.data.tags.get("rule") == "workflow"),
@@ -418,7 +437,7 @@ def test_ctrl_c_during_onstart_is_a_clean_message(tmp_path):
             assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()[-3000:]
             time.sleep(0.02)
         os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
-        _, err = proc.communicate(timeout=120)
+        err = _ended(proc, tmp_path, timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -442,7 +461,7 @@ def test_sigterm_stops_the_jobs_as_ctrl_c_does(tmp_path):
             time.sleep(0.05)
         time.sleep(1.0)  # into its work
         proc.send_signal(signal.SIGTERM)  # Snakemake alone, as `kill PID` or a scheduler would
-        _, err = proc.communicate(timeout=120)
+        err = _ended(proc, tmp_path, timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -155,9 +155,13 @@ def _mlflow_end(args: argparse.Namespace) -> int:
 
 
 def _mlflow_ingest(args: argparse.Namespace) -> int:
+    from dozerlab import spool
+
+    # before MLflow is imported: a SIGTERM while it loads, too, asks the follower to stop
+    stop = spool.stop_on_signals() if args.follow else None
     from dozerlab.tracking import follow_parent, ingest_finished
 
-    count = follow_parent(args.run_id) if args.follow else ingest_finished(args.run_id)
+    count = follow_parent(args.run_id, stop) if stop is not None else ingest_finished(args.run_id)
     print(f"logged {count} job runs of workflow run {args.run_id}", file=sys.stderr)
     return 0
 

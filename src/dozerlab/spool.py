@@ -29,10 +29,12 @@ Registry under the name the job gave (:func:`register_model`).
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -312,12 +314,56 @@ def parents(root: Path) -> list[str]:
     return sorted(d.name for d in root.iterdir() if d.is_dir()) if root.is_dir() else []
 
 
-def follow(client: Any, root: Path, parent: str, poll_s: float = 1.0) -> int:
-    """Log ``parent``'s records as their jobs finish, until SIGTERM or SIGINT; the record being
-    logged then is completed first. Returns how many were logged."""
+#: How long a follower asked to stop may take to finish the record it is logging.
+FOLLOWER_STOP_S = 30.0
+
+
+def stop_on_signals() -> threading.Event:
+    """An event that SIGTERM and SIGINT set from now on, for a follower to stop at its next
+    check: raised as ``SystemExit`` instead, a signal would land anywhere in MLflow's imports or
+    a record's logging. SIGUSR1 writes the process's thread stacks to stderr, so that one that
+    does not stop can be seen where it hangs (:func:`stop_follower`)."""
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda signum, frame: stop.set())
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    return stop
+
+
+def start_follower(parent: str, log: Path) -> subprocess.Popen[bytes]:
+    """``dozerlab mlflow-ingest PARENT --follow`` in a session of its own (Ctrl-C reaches the
+    workflow alone, which stops it with :func:`stop_follower`), its output appended to ``log``."""
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a") as out:
+        return subprocess.Popen(
+            [sys.executable, "-m", "dozerlab", "mlflow-ingest", parent, "--follow"],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+
+def stop_follower(proc: subprocess.Popen[bytes], within_s: float = FOLLOWER_STOP_S) -> bool:
+    """Ask the follower ``proc`` to stop (SIGTERM) and wait up to ``within_s`` seconds for it to
+    finish its record; one still running then writes its thread stacks to its log (SIGUSR1) and
+    is killed. Returns whether it stopped by itself. A killed follower loses nothing: mlflow-end
+    logs the records it left, replacing a run it had half logged."""
+    proc.terminate()
+    try:
+        proc.wait(timeout=within_s)
+        return True
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(0.5)  # for the stacks to be written
+        proc.kill()
+        proc.wait()
+        return False
+
+
+def follow(client: Any, root: Path, parent: str, stop: threading.Event, poll_s: float = 1.0) -> int:
+    """Log ``parent``'s records as their jobs finish, until ``stop`` is set
+    (:func:`stop_on_signals`); the record being logged then is completed first. Returns how
+    many were logged."""
     count = 0
     damaged: set[Path] = set()  # named once, left for mlflow-end to name again
     while not stop.is_set():

@@ -38,6 +38,7 @@ import fcntl
 import os
 import socket
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -529,8 +530,8 @@ def ingest_finished(run_id: str) -> int:
     return spool.ingest(client, root, run_id, with_open=False)
 
 
-def follow_parent(run_id: str) -> int:
-    """Log the spooled runs of workflow run ``run_id`` as its jobs end, until SIGTERM
+def follow_parent(run_id: str, stop: threading.Event) -> int:
+    """Log the spooled runs of workflow run ``run_id`` as its jobs end, until ``stop`` is set
     (``dozerlab mlflow-ingest --follow``, beside the workflow). Returns how many."""
     root, client = _spool_client()
-    return spool.follow(client, root, run_id)
+    return spool.follow(client, root, run_id, stop)

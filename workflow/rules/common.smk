@@ -332,32 +332,24 @@ def start_parent_run():
 
 # `dozerlab mlflow-ingest --follow` beside the jobs, while this invocation runs.
 INGEST = []
+INGEST_LOG = Path("logs", "mlflow-ingest.log")
 
 
 def start_ingest(run_id):
     """Log the jobs' spooled runs as they end, in one process beside the workflow; it writes to
     logs/mlflow-ingest.log and stops with this Snakemake (runtime.die_with_workflow)."""
-    Path("logs").mkdir(exist_ok=True)
-    with open(Path("logs", "mlflow-ingest.log"), "a") as out:
-        INGEST.append(
-            subprocess.Popen(
-                [sys.executable, "-m", "dozerlab", "mlflow-ingest", run_id, "--follow"],
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,  # Ctrl-C reaches Snakemake alone, which stops it below
-            )
-        )
+    INGEST.append(spool.start_follower(run_id, INGEST_LOG))
 
 
 def stop_ingest():
     """Stop the follower after the run it is logging; mlflow-end logs what is left."""
     for proc in INGEST:
-        proc.terminate()
-        try:
-            proc.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        if not spool.stop_follower(proc):
+            print(
+                f"dozerlab: the MLflow follower (pid {proc.pid}) did not stop within "
+                f"{spool.FOLLOWER_STOP_S:g} s and was killed; its stacks are in {INGEST_LOG}",
+                file=sys.stderr,
+            )
     INGEST.clear()
 
 
