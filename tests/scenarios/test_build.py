@@ -2,7 +2,9 @@ import numpy as np
 import pytest
 
 from dozerlab.config import load_config
+from dozerlab.ndem import World
 from dozerlab.runtime import ConfigError
+from dozerlab.scenarios import build
 from dozerlab.scenarios.blade import add_blade, start_tip
 from dozerlab.scenarios.build import build_bed, make_world
 from dozerlab.scenarios.heightfield import height_field
@@ -166,3 +168,47 @@ def test_a_bed_poured_with_the_zone_steps_fewer_contacts_and_settles_whole(beds,
     assert zoned.info["time"] >= zoned.info["emission_time"] + settle
     assert abs(zoned.count - whole.count) < 0.1 * whole.count
     assert zoned.kinetic_energy_per_particle() < small_config["bed"]["settle_kinetic_energy"]
+
+
+def test_the_pour_steps_with_every_solver_and_material_setting_of_the_config(monkeypatch):
+    """The bed's job is given every solver setting but the blade's zone (the workflow reruns it
+    when one changes): each must reach the world it pours with, the bed's own step, sweeps and
+    zone switch in place of the solver's."""
+    given = {
+        "solver": {
+            "relinearize": 0,
+            "relinearize_above": 0.2,
+            "tolerance": 2e-4,
+            "relaxation": 0.9,
+            "damping_steps": 3.0,
+            "max_overlap": 0.4,
+            "active_zone": {
+                "enabled": False,
+                "rest_speed": 0.03,
+                "rest_time": 0.3,
+                "wake_load": 3.0,
+            },
+        },
+        "material": {"friction": 0.5, "rolling_resistance": 0.05},
+    }
+    config = load_config({**SMALL, **given, "bed": {**SMALL["bed"], "active_zone": True}})
+    stepped = []
+
+    class Recording(World):
+        def step(self, n=1):
+            stepped.append(self.params)
+            raise StopIteration  # the parameters are all this test needs
+
+    monkeypatch.setattr(build, "World", Recording)
+    with pytest.raises(StopIteration):
+        build_bed("hill", config, progress=False)
+    params = stepped[0]
+    for key, value in given["solver"].items():
+        if key != "active_zone":
+            assert getattr(params, key) == value, key
+    for key in ("rest_speed", "rest_time", "wake_load"):
+        assert getattr(params, key) == given["solver"]["active_zone"][key], key
+    for key, value in given["material"].items():
+        assert getattr(params, key) == value, key
+    assert params.active_zone  # bed.active_zone, not the blade's
+    assert (params.dt, params.iterations) == (config["bed"]["dt"], config["bed"]["iterations"])

@@ -233,10 +233,10 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     """Build and settle the bed of ``scenario`` (a preset or a scenario the config's ``scenarios``
     defines, :mod:`dozerlab.terrain`) from a validated config.
 
-    Uses ``bed.dt`` and ``bed.iterations`` for the solver, the ``solver`` section's gravity,
-    damping and overlap limit, ``material`` and ``seed``. The strip makes one pass, with
-    ``bed.active_zone`` the grains at rest asleep (``solver.active_zone``'s rest speed, rest
-    time and wake load); then the bed settles, every grain stepped (at least
+    Uses ``bed.dt`` and ``bed.iterations`` for the solver, the rest of the ``solver`` section
+    (``solver.active_zone``'s rest speed, rest time and wake load for the zone, whether it is on
+    being ``bed.active_zone``), ``material`` and ``seed``. The strip makes one pass, with
+    ``bed.active_zone`` the grains at rest asleep; then the bed settles, every grain stepped (at least
     ``bed.awake_settle_time`` with the zone), until the mean kinetic energy per particle is
     below ``bed.settle_kinetic_energy``.
     Raises ConfigError if the terrain cannot be built (:func:`dozerlab.terrain.check_terrain`),
@@ -245,24 +245,13 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     """
     from tqdm import tqdm
 
-    b, solver, mat = config["bed"], config["solver"], config["material"]
+    b, mat = config["bed"], config["material"]
     emitter = _Emitter(scenario, config, np.random.default_rng(int(config["seed"])))
     dt, log_every = float(b["dt"]), int(b["log_every"])
-    world = World(
-        dt,
-        int(b["iterations"]),
-        solver["gravity"],
-        method=solver["method"],
-        relaxation=solver["relaxation"],
-        tolerance=solver["tolerance"],
-        damping_steps=solver["damping_steps"],
-        youngs_modulus=mat["youngs_modulus"],
-        poisson_ratio=mat["poisson_ratio"],
-        max_overlap=solver["max_overlap"],
-        active_zone=bool(b["active_zone"]),
-        rest_speed=solver["active_zone"]["rest_speed"],
-        rest_time=solver["active_zone"]["rest_time"],
-        wake_load=solver["active_zone"]["wake_load"],
+    # every solver and material setting of the config, with the bed's own step, sweeps and zone
+    world = World.from_config(config)
+    world.params = world.params.with_(
+        dt=dt, iterations=int(b["iterations"]), active_zone=bool(b["active_zone"])
     )
     add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
     # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
