@@ -31,6 +31,11 @@ from dozerlab.runtime import DozerlabError
 
 #: The dynamics-model name that replays the point's own NDEM store.
 REPLAY = "replay"
+#: Rows a force model reads at once after the loop. With batches of 256 and torch's first call
+#: in the loop's time, that pass took 0.45-0.72 ms a row of the default sweep's reduce jobs; in
+#: batches of 16 after a first call at load, 0.10-0.17 ms, the same numbers (BENCHMARKS.md,
+#: "The loop's force rows in small batches").
+FORCE_BATCH = 16
 
 
 class FieldModel(Protocol):
@@ -216,6 +221,14 @@ class ForcePredictor:
         kind = str(meta.get("kind") or path.name)
         self.name = f"{kind}-loop" if meta.get("loop_fields") else kind
         self.bin_size = meta.get("bin_size")
+        # torch's first call in a process costs several times the next: made here, it falls in
+        # loading the model, not in the loop (FORCE_BATCH)
+        grid = tuple(self.module.grid)
+        self.predict_rows(
+            np.zeros((FORCE_BATCH, *grid, 3)),
+            np.zeros((FORCE_BATCH, *grid)),
+            np.zeros((FORCE_BATCH, 3)),
+        )
 
     def check_run(self, run: RunFrame) -> None:
         """Refuse a run whose bins, bin size or blade part are not those the model was
@@ -257,6 +270,7 @@ class ForcePredictor:
         rows = predict_force_rows(
             self.module,
             {"velocity": velocity, "density": density, "blade_velocity": blade_velocity},
+            batch=FORCE_BATCH,
         ).astype(np.float64)
         return rows[:, :3], rows[:, 3:6]
 
