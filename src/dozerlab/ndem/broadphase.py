@@ -80,11 +80,15 @@ def counting_sort(keys: np.ndarray, nkeys: int) -> tuple[np.ndarray, np.ndarray]
 
 
 @njit(cache=True)
-def _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, out_j, out_n, out_g, base):
+def _scan_neighbours(
+    i, pos, radii, reach, cells, start, dims, awake, woke, out_j, out_n, out_g, base
+):
     """Count (``base`` < 0) or write the pairs (i, j > i) of particle i; returns the count.
 
     A pair of two spheres asleep (``awake`` (N,) False; an empty ``awake``: all awake) is
-    skipped: neither moves, so the step has nothing to solve between them.
+    skipped: neither moves, so the step has nothing to solve between them. ``woke`` (N + 1,)
+    counts the awake spheres before each slot (:func:`_awake_before`), so that a sleeping
+    sphere skips whole cell ranges without an awake one.
 
     Writes go to ``base`` onwards and stop at the end of ``out_j`` (the count goes on), so a
     caller whose buffer was too small sees ``base + count > len(out_j)`` and can retry.
@@ -112,7 +116,10 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, out_j, out
                 continue
             col = (jx * dims[1] + jy) * dims[2]
             j0 = i + 1 if dx == 0 and dy == 0 else start[col + jz0]
-            for j in range(j0, start[col + jz1 + 1]):
+            j1 = start[col + jz1 + 1]
+            if not i_awake and woke[j1] == woke[j0]:
+                continue  # asleep, and nothing awake here: most of a poured bed's scan
+            for j in range(j0, j1):
                 if not (i_awake or awake[j]):
                     continue
                 d0 = x0 - pos[j, 0]
@@ -137,6 +144,19 @@ def _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, out_j, out
                     out_g[k] = radii[i] + radii[j] - dist
                 count += 1
     return count
+
+
+@njit(cache=True)
+def _awake_before(awake):
+    """(N + 1,) int64: the awake spheres among slots 0..k-1 for every k (an empty ``awake``,
+    every sphere awake: empty)."""
+    if awake.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    out = np.empty(awake.shape[0] + 1, dtype=np.int64)
+    out[0] = 0
+    for k in range(awake.shape[0]):
+        out[k + 1] = out[k] + (1 if awake[k] else 0)
+    return out
 
 
 @njit(cache=True)
@@ -185,23 +205,26 @@ def sphere_pairs(
 def pairs_serial(pos, radii, reach, cells, start, dims, awake, capacity):
     """:func:`sphere_pairs` in one pass into buffers of ``capacity`` (≥ 1) pairs, doubled and
     rescanned from the start on the rare overflow."""
+    woke = _awake_before(awake)
     while True:
         pi = np.empty(capacity, dtype=np.int64)
         pj = np.empty(capacity, dtype=np.int64)
         nrm = np.empty((capacity, 3))
         gap = np.empty(capacity)
-        m = _fill_pairs(pos, radii, reach, cells, start, dims, awake, pi, pj, nrm, gap)
+        m = _fill_pairs(pos, radii, reach, cells, start, dims, awake, woke, pi, pj, nrm, gap)
         if m >= 0:
             return pi[:m], pj[:m], nrm[:m], gap[:m]
         capacity *= 2
 
 
 @njit(cache=True)
-def _fill_pairs(pos, radii, reach, cells, start, dims, awake, pi, pj, nrm, gap):
+def _fill_pairs(pos, radii, reach, cells, start, dims, awake, woke, pi, pj, nrm, gap):
     """Write all pairs into the buffers; returns their number, or -1 if they did not fit."""
     m = 0
     for i in range(pos.shape[0]):
-        count = _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, pj, nrm, gap, m)
+        count = _scan_neighbours(
+            i, pos, radii, reach, cells, start, dims, awake, woke, pj, nrm, gap, m
+        )
         if m + count > pj.shape[0]:
             return -1
         pi[m : m + count] = i
@@ -213,6 +236,7 @@ def _fill_pairs(pos, radii, reach, cells, start, dims, awake, pi, pj, nrm, gap):
 def pairs_parallel(pos, radii, reach, cells, start, dims, awake):
     """:func:`sphere_pairs` by count, then fill, each pass over the spheres in parallel."""
     n = pos.shape[0]
+    woke = _awake_before(awake)
     dummy_j = np.empty(0, dtype=np.int64)
     dummy_n = np.empty((0, 3))
     dummy_g = np.empty(0)
@@ -220,11 +244,13 @@ def pairs_parallel(pos, radii, reach, cells, start, dims, awake):
     counts[0] = 0
     for i in prange(n):
         counts[i + 1] = _scan_neighbours(
-            i, pos, radii, reach, cells, start, dims, awake, dummy_j, dummy_n, dummy_g, -1
+            i, pos, radii, reach, cells, start, dims, awake, woke, dummy_j, dummy_n, dummy_g, -1
         )
     offsets, pi, pj, nrm, gap = hit_buffers(counts)
     for i in prange(n):
-        _scan_neighbours(i, pos, radii, reach, cells, start, dims, awake, pj, nrm, gap, offsets[i])
+        _scan_neighbours(
+            i, pos, radii, reach, cells, start, dims, awake, woke, pj, nrm, gap, offsets[i]
+        )
         for k in range(offsets[i], offsets[i + 1]):
             pi[k] = i
     return pi, pj, nrm, gap
