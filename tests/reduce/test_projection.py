@@ -136,15 +136,18 @@ def test_the_tolerance_stops_the_sweeps_early_with_the_overlap_it_allows():
     assert body_penetration(loose, r, bodies()) <= 1e-12
 
 
-def cell_sorted(x: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Slot order of ``x`` (N, 3) sorted by the cells of edge ``cell`` covering it (x-major),
-    the grid's origin and cell counts: the order ``_pairs_sorted`` reads."""
+def cell_sorted(
+    x: np.ndarray, r: np.ndarray, w: np.ndarray, cell: float, reach: np.ndarray | None = None
+) -> tuple[np.ndarray, ...]:
+    """``x`` (N, 3), ``r`` and ``w`` (N,) sorted by the cells of edge ``cell`` covering them
+    (x-major), as :func:`projection._round` sorts them, and the pairs ``_pairs_sorted`` lists
+    within ``reach`` (default r + 0.02 m): (perm, x, r, w, pi, pj), perm new slot → old."""
     lo = x.min(0) - 1e-9
     dims = np.ceil((x.max(0) - lo + 1e-9) / cell).astype(np.int64)
-    perm, _ = projection.broadphase.counting_sort(
-        projection.broadphase.cell_indices(x, lo, cell, dims), int(np.prod(dims))
-    )
-    return perm, lo, dims
+    perm, xs, rs, ws, start, movable = projection._by_cell(x, r, w, lo, cell, dims)
+    sorted_reach = rs + 0.02 if reach is None else reach[perm]
+    pi, pj = projection._pairs_sorted(xs, sorted_reach, ws, start, movable, dims)
+    return perm, xs, rs, ws, pi, pj
 
 
 def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
@@ -155,10 +158,8 @@ def test_restricted_sweeps_give_the_full_sweeps_result_with_fewer_tests():
     layer = np.stack(np.meshgrid(1.2 + g, g - 0.45, [0.05], indexing="ij"), -1).reshape(-1, 3)
     x = np.vstack([x, layer])
     r, w = np.concatenate([r, np.full(100, 0.045)]), np.concatenate([w, np.ones(100)])
-    perm, lo, dims = cell_sorted(x, 0.2)
-    x, r, w = np.ascontiguousarray(x[perm]), r[perm], w[perm]
+    _, x, r, w, pi, pj = cell_sorted(x, r, w, 0.2)
     b = bodies()
-    pi, pj = projection._pairs_sorted(x, r + 0.02, w, lo, 0.2, dims)
     bi, bb = projection._body_candidates(
         x, r, w, 0.1, b.kind, b.centre, b.rotation, b.half, b.normal
     )
@@ -178,10 +179,8 @@ def test_ripples_below_the_quiet_share_wake_no_contacts_and_the_pile_still_conve
     x, r, w = pile(600, seed=3)
     project(x, r, w, bodies(), iterations=500, slop=0.05)
     x[x[:, 0] < 0.3, 0] += 0.01
-    perm, lo, dims = cell_sorted(x, 0.2)
-    x, r, w = np.ascontiguousarray(x[perm]), r[perm], w[perm]
+    _, x, r, w, pi, pj = cell_sorted(x, r, w, 0.2)
     b = bodies()
-    pi, pj = projection._pairs_sorted(x, r + 0.02, w, lo, 0.2, dims)
     bi, bb = projection._body_candidates(
         x, r, w, 0.1, b.kind, b.centre, b.rotation, b.half, b.normal
     )
@@ -215,10 +214,7 @@ def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles(o
         for a, b in zip(*np.nonzero(d < reach[:, None] + reach[None]), strict=True)
         if a < b and (w[a] > 0 or w[b] > 0)
     }
-    perm, lo, dims = cell_sorted(x, 0.11)  # cells >= the largest reach sum
-    pa, pb = projection._pairs_sorted(
-        np.ascontiguousarray(x[perm]), reach[perm], w[perm], lo, 0.11, dims
-    )
+    perm, *_, pa, pb = cell_sorted(x, r, w, 0.11, reach)  # cells >= the largest reach sum
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
 

@@ -73,7 +73,7 @@ import numpy as np
 from numba import njit
 
 from dozerlab.fields.sampling import SamplingGrid
-from dozerlab.reduce.interpolate import interpolate
+from dozerlab.reduce.interpolate import interpolate, trilinear
 from dozerlab.reduce.projection import (
     Bodies,
     ProjectionStats,
@@ -265,6 +265,105 @@ def _in_box(x, lower, upper):  # pragma: no cover - compiled
     return out
 
 
+@njit(cache=True)
+def _advect(
+    x,
+    v,
+    m,
+    moving,
+    sel,
+    movable,
+    inside,
+    ballistic,
+    near_blade,
+    field,
+    weight,
+    lower,
+    size,
+    top,
+    crest_top,
+    h,
+    gravity,
+):  # pragma: no cover - compiled
+    """Step 2 of the module doc for the selected grains ``sel`` (S,) of ``x``, ``v`` (N, 3) m,
+    m/s (masses ``m``, ``moving``, ``inside``, ``ballistic``, ``near_blade`` (N,)), in one pass:
+    the field ``field`` (X, Y, Z, 3) m/s interpolated mass-weighted by ``weight`` (X, Y, Z)
+    kg/m³ (the volume's lower corner ``lower`` (3,) m, bins ``size`` (3,) m) for those in the
+    volume, the fall above its ``top`` (m; below ``crest_top`` m a grain the top bins lift rises
+    with them), the ballistic flight, each over ``h`` s under ``gravity`` (3,) m/s².
+
+    Returns the start positions x0 (S, 3) m, the advected ones xs, their velocities vs (S, 3)
+    m/s, which were carried by the field (ins) or flying (bal), which move (mover: carried,
+    flying, near the blade or moving), all (S,) bool, and the projection's inverse masses
+    inv_m (S,) 1/kg: 0 for an obstacle (not ``movable`` (S,)) and for a grain at rest below
+    the volume.
+    """
+    n = sel.shape[0]
+    x0 = np.empty((n, 3))
+    vs = np.zeros((n, 3))
+    ins = np.empty(n, np.bool_)
+    bal = np.empty(n, np.bool_)
+    mover = np.empty(n, np.bool_)
+    inv_m = np.empty(n)
+    carried = 0
+    for q in range(n):
+        p = sel[q]
+        for a in range(3):
+            x0[q, a] = x[p, a]
+        ins[q], bal[q] = inside[p], ballistic[p]
+        carried += ins[q]
+    pts = np.empty((carried, 3))
+    c = 0
+    for q in range(n):
+        if ins[q]:
+            for a in range(3):
+                pts[c, a] = x0[q, a]
+            c += 1
+    out = np.empty((carried, 3))
+    trilinear(field, weight, lower, size, pts, out)
+    xs = x0.copy()
+    c = 0
+    for q in range(n):
+        p = sel[q]
+        if ins[q]:
+            for a in range(3):
+                vs[q, a] = out[c, a]
+            c += 1
+            # Above the volume the field says nothing: a grain there keeps the top bins'
+            # horizontal velocity and falls until the grains below hold it up. Given their
+            # upward velocity too, the pile in front of the blade grew to 1.27 m where NDEM's
+            # stops below 0.8 m (step 1.0/0.12, the truth fields; BENCHMARKS.md) ... but just
+            # above the top a grain the top bins lift rises with them: the pile's crest, which in
+            # NDEM climbs past the blade's top and tips over it (held down there, the strip over
+            # and behind the blade lost 0.02-0.05 of the smoothed surface against the twin's
+            # 0.01-0.03 with NDEM's own fields; BENCHMARKS.md, "The pile's crest over the blade's
+            # top")
+            if xs[q, 2] > top and (vs[q, 2] <= 0.0 or xs[q, 2] > crest_top):
+                vs[q, 2] = v[p, 2] + h * gravity[2]
+        elif bal[q]:
+            for a in range(3):
+                vs[q, a] = v[p, a] + h * gravity[a]
+        for a in range(3):
+            xs[q, a] += h * vs[q, a]
+        mover[q] = ins[q] or bal[q] or near_blade[p] or moving[p]
+        # the bed at rest below the sampling volume holds like the ground: yielding with its
+        # own mass, it was packed ever deeper under the pile (grains moved from 0.3 m below the
+        # surface: 1.6-2.0 thousand with the learned fields, 0.35 thousand in NDEM)
+        inv_m[q] = 1.0 / m[p] if movable[q] and (mover[q] or x0[q, 2] >= lower[2]) else 0.0
+    return x0, xs, vs, ins, bal, mover, inv_m
+
+
+@njit(cache=True)
+def _beyond(step, mover, movable, far, near):  # pragma: no cover - compiled
+    """(S,) bool: the ``movable`` (S,) rows of ``step`` (S, 3) m longer than ``far`` m for a
+    ``mover`` (S,) bool, else ``near`` m; one pass (NumPy's norm and masks cost 0.2 ms a step)."""
+    out = np.empty(step.shape[0], np.bool_)
+    for q in range(step.shape[0]):
+        d = np.sqrt(step[q, 0] * step[q, 0] + step[q, 1] * step[q, 1] + step[q, 2] * step[q, 2])
+        out[q] = movable[q] and d > (far if mover[q] else near)
+    return out
+
+
 class ReducedState:
     """The particles of a reduced run and one step of the loop (steps 2–3 of the module doc).
 
@@ -329,9 +428,7 @@ class ReducedState:
         ``movable`` (S,) bool grain less than 1 cell − 2 r_max.
         """
         contact = 2.0 * float(self.r.max())
-        d = np.linalg.norm(step, axis=1)
-        budget = np.where(mover, 2.0 * self.cell - contact, self.cell - contact)
-        return movable & (d > budget)
+        return _beyond(step, mover, movable, 2.0 * self.cell - contact, self.cell - contact)
 
     def _whole_bed_overlap(self, sel: np.ndarray, xs: np.ndarray, movable: np.ndarray) -> float:
         """The largest overlap (over the smaller radius) of a pair with a movable grain, over
@@ -406,36 +503,27 @@ class ReducedState:
         self.active = int(np.count_nonzero(inside | ballistic | near_blade))
         t0 = times.add("selection", t0)
 
-        x0 = self.x[sel].copy()
-        xs = x0.copy()
-        vs = np.zeros_like(x0)
-        ins, bal = inside[sel], ballistic[sel]
-        if ins.any():
-            vs[ins] = interpolate(
-                velocity, xs[ins], lower, np.asarray(self.grid.bin_size), weight=density
-            )
-        # Above the volume the field says nothing: a grain there keeps the top bins' horizontal
-        # velocity and falls until the grains below hold it up. Given their upward velocity too,
-        # the pile in front of the blade grew to 1.27 m where NDEM's stops below 0.8 m (step
-        # 1.0/0.12, the truth fields; BENCHMARKS.md).
         top = lower[2] + self.extent[2]
-        above = ins & (xs[:, 2] > top)
-        # ... but just above the top a grain the top bins lift rises with them: the pile's crest,
-        # which in NDEM climbs past the blade's top and tips over it (held down there, the strip
-        # over and behind the blade lost 0.02-0.05 of the smoothed surface against the twin's
-        # 0.01-0.03 with NDEM's own fields; BENCHMARKS.md, "The pile's crest over the blade's top")
-        above &= (vs[:, 2] <= 0.0) | (xs[:, 2] > top + s.crest_bins * self.grid.bin_size[2])
-        vs[above, 2] = self.v[sel[above], 2] + h * self.gravity[2]
-        vs[bal] = self.v[sel[bal]] + h * self.gravity
-        xs += h * vs
+        x0, xs, vs, ins, bal, mover, inv_m = _advect(
+            self.x,
+            self.v,
+            self.m,
+            self.moving,
+            sel,
+            movable,
+            inside,
+            ballistic,
+            near_blade,
+            np.asarray(velocity, dtype=np.float64),
+            np.ascontiguousarray(density, dtype=np.float64),
+            lower,
+            np.asarray(self.grid.bin_size, dtype=np.float64),
+            top,
+            top + s.crest_bins * self.grid.bin_size[2],
+            h,
+            self.gravity,
+        )
         t0 = times.add("advection", t0)
-
-        inv_m = np.where(movable, 1.0 / self.m[sel], 0.0)
-        # the bed at rest below the sampling volume holds like the ground: yielding with its
-        # own mass, it was packed ever deeper under the pile (grains moved from 0.3 m below the
-        # surface: 1.6-2.0 thousand with the learned fields, 0.35 thousand in NDEM)
-        mover = ins | bal | near_blade[sel] | self.moving[sel]
-        inv_m[~mover & (x0[:, 2] < lower[2])] = 0.0
         radii = self.r[sel]
 
         def projected() -> ProjectionStats:
