@@ -270,3 +270,27 @@ def test_a_grain_the_sweeps_leave_too_deep_goes_back_to_where_it_started(limit, 
         np.testing.assert_array_equal(state.x, x)
     else:
         assert worst == pytest.approx(0.5)
+
+
+def test_a_step_projected_again_sweeps_without_over_relaxation(monkeypatch):
+    # the caged grain of the test above, over-relaxed sweeps asked for: the first projection
+    # runs at the setting, the one after the grain went back at 1 (plain Gauss-Seidel: an
+    # over-relaxed retry pushed grains of the default sweep's unet and persistence loops past
+    # the ring, 0.70 and 0.92 radius deep over the whole bed, at 1.8 and 1.9)
+    import dozerlab.reduce.simulation as simulation
+
+    asked: list[float] = []
+
+    def recorded(*args, **kwargs):
+        asked.append(kwargs["relaxation"])
+        return project(*args, **kwargs)
+
+    project = simulation.project
+    monkeypatch.setattr(simulation, "project", recorded)
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    x = np.array([[0.2, 0.0, 0.02], [0.2, 0.0, 0.11]])
+    field = np.broadcast_to(np.array([0.0, 0.0, -6.0]), (*grid.bins, 3)).copy()
+    settings = ReducedSettings(iterations=0, overlap_limit=0.1, relaxation=1.8)
+    state = _state(x, np.zeros_like(x), grid, settings)
+    state.step(field, np.full(grid.bins, 1500.0), np.array([0.0, 0.0, 0.1]), 0.01)
+    assert asked == [1.8, 1.0]

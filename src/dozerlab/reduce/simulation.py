@@ -104,7 +104,7 @@ class ReducedSettings:
 
     iterations: int = 96
     method: str = "gauss_seidel"
-    relaxation: float = 1.5
+    relaxation: float = 1.7
     slop: float = 0.05
     tolerance: float = 0.02
     overlap_limit: float = 0.1
@@ -526,7 +526,7 @@ class ReducedState:
         t0 = times.add("advection", t0)
         radii = self.r[sel]
 
-        def projected() -> ProjectionStats:
+        def projected(relaxation: float = s.relaxation) -> ProjectionStats:
             return project(
                 xs,
                 radii,
@@ -534,14 +534,14 @@ class ReducedState:
                 self.bodies,
                 iterations=s.iterations,
                 method=s.method,
-                relaxation=s.relaxation,
+                relaxation=relaxation,
                 slop=s.slop,
                 tolerance=s.tolerance,
                 overlap_limit=s.overlap_limit,
             )
 
         def projected_again(first: ProjectionStats) -> ProjectionStats:
-            again = projected()
+            again = projected(min(s.relaxation, 1.0))
             again.sweeps += first.sweeps
             again.tests += first.tests
             again.body_depth = max(again.body_depth, first.body_depth)
