@@ -7,13 +7,15 @@ and machine, in one process run.
 
 Runs NDEM (``fields.jobs.simulate``) on the point's bed and trajectory under ``--results``, then
 the reduced loop with each dynamics model (``replay``: the new NDEM run's own fields;
-otherwise ``results/dynamics/{model}``) and the config's force model, into a temporary folder,
-and prints for each: the stepping loop's wall time and its speed-up over NDEM's (per simulated
-second: the same trajectory), the mean time per store row of each phase (selection,
-advection, projection, sampling, field and force inference, store writes) and of the NDEM
-warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy figures
-(and on the scales NDEM reproduces: the surface smoothed at one grain diameter, the pushing
-force low-passed over 0.1 s);
+otherwise ``results/dynamics/{model}``) and the force model rule ``reduce`` gives it
+(``sweep.reduce_force_model_path``: with ``reduced.force_fields`` loop the one fitted to that
+model's loop fields), the heap frozen once they are loaded as the reduce job freezes it, into a
+temporary folder, and prints for each: the stepping loop's wall time and its speed-up over
+NDEM's (per simulated second: the same trajectory), the mean time per store row of each phase
+(selection, advection, projection, sampling, field and force inference, store writes) and of
+the NDEM warm-up, the grains moved per step, the largest overlap, and the comparison's accuracy
+figures (and on the scales NDEM reproduces: the surface smoothed at one grain diameter, the
+pushing force low-passed over 0.1 s);
 with ``--chaos``, the same figures for a second NDEM run from the bed moved by 1 µm first.
 With ``--stored-ndem`` the point's NDEM run already under ``--results`` (its store and final
 state, read only) stands in for a new one: the speed-up is then against the stored store's
@@ -33,7 +35,7 @@ import numpy as np
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
-from dozerlab.runtime import set_threads
+from dozerlab.runtime import freeze_heap, set_threads
 
 
 def _accuracy(c: dict[str, Any]) -> str:
@@ -114,7 +116,6 @@ def main() -> None:
     point = P.SweepPoint(args.scenario, args.speed, args.depth)
     res = Path(args.results)
     bed, traj = P.bed_path(res, point.scenario), P.trajectory_path(res, point)
-    force = ForcePredictor(P.model_path(res, cfg["reduced"]["force_model"]))
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         print(f"{point.scenario} {point.name}, {args.threads} thread(s)")
@@ -142,6 +143,8 @@ def main() -> None:
         for name in args.dynamics:
             source = name if name == "replay" else P.dynamics_model_path(res, name)
             fm = load_field_model(source, tuple(cfg["sampling"]["bins"]), ndem_store)
+            force = ForcePredictor(P.reduce_force_model_path(res, cfg["reduced"], name))
+            freeze_heap()  # as the reduce job does: no full collection walks the models mid-loop
             t0 = time.perf_counter()
             r = reduce_run(
                 bed,

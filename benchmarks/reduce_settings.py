@@ -7,9 +7,10 @@
 Each argument is a variant, ``NAME:KEY=VALUE,...`` (dotted config keys, values as YAML), laid
 over ``--config`` and validated like it. For each variant and each held-out point of the config
 (interpolation, extrapolation, transfer), runs the reduced loop as rule ``reduce_points`` does
-(``reduce_run``, one thread) with the dynamics model of ``--results`` (``replay``: the point's
-NDEM fields) and its loop force model (``results/reduced/{model}/force_model``, or
-``results/models/{force_model}`` where the model has none), into a temporary folder, and
+(``reduce_run``, one thread, the heap frozen once the models are loaded) with the dynamics model
+of ``--results`` (``replay``: the point's NDEM fields) and the force model rule ``reduce`` gives
+it (``sweep.reduce_force_model_path``: with ``reduced.force_fields`` loop its loop force model,
+replay's ``results/models/{force_model}``), into a temporary folder, and
 compares it with the point's NDEM run and its twin (``compare_point``). Prints per point the
 loop's wall time, its speed-up over the stored NDEM run's ``wall_time_s`` per simulated second,
 ms a row projecting, sweeps and contact tests a step, grains moved a step, the largest overlap,
@@ -39,7 +40,7 @@ import yaml
 
 from dozerlab import sweep as P
 from dozerlab.config import load_config
-from dozerlab.runtime import set_threads
+from dozerlab.runtime import freeze_heap, set_threads
 
 
 def _variant(text: str, base: dict[str, Any]) -> tuple[str, dict[str, Any]]:
@@ -86,10 +87,7 @@ def main() -> None:
         if training
         else ("surface_accuracy_skill", "force_lp_rel_rmse_skill")
     )
-    loop_force = res / "reduced" / args.dynamics / "force_model"
-    force = ForcePredictor(
-        loop_force if loop_force.is_dir() else P.model_path(res, base["reduced"]["force_model"])
-    )
+    force = ForcePredictor(P.reduce_force_model_path(res, base["reduced"], args.dynamics))
     figures: dict[str, list[list[tuple[float, float, float, float]]]] = {n: [] for n, _ in variants}
     with tempfile.TemporaryDirectory() as tmp:
         for pt in points:
@@ -100,6 +98,7 @@ def main() -> None:
                 tuple(base["sampling"]["bins"]),
                 P.field_path(res, pt),
             )
+            freeze_heap()  # as the reduce job does: no full collection walks the models mid-loop
             beds = {}
             for seed in args.jitter_seeds:
                 beds[seed] = P.bed_path(res, pt.scenario)

@@ -67,6 +67,16 @@ def test_roles_and_the_paths_of_beds_models_and_validation():
     )
 
 
+def test_a_loop_fitted_force_model_serves_its_own_dynamics_model_and_replay_the_ndem_one():
+    loop = {"force_fields": "loop", "force_model": "linear"}
+    assert str(P.reduce_force_model_path("results", loop, "ridge")) == (
+        "results/reduced/ridge/force_model"
+    )
+    assert str(P.reduce_force_model_path("results", loop, "replay")) == "results/models/linear"
+    ndem = {"force_fields": "ndem", "force_model": "unet"}
+    assert str(P.reduce_force_model_path("results", ndem, "ridge")) == "results/models/unet"
+
+
 def test_the_twin_is_draw_one_and_further_draws_are_named_by_number():
     point = P.sweep_points(CFG)[2]
     assert [tuple(map(str, run)) for run in P.twin_draws("results", point, 2)] == [

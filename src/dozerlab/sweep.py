@@ -316,6 +316,18 @@ dynamics_validation_path = _per_model("dynamics_validation", "an evolution model
 dynamics_plots_path = _per_model("dynamics_plots", "the figures of that validation")
 
 
+def reduce_force_model_path(
+    results: str | Path, reduced: dict[str, Any], dynamics_model: str
+) -> Path:
+    """The force model a dynamics model's reduced runs read, as rule ``reduce`` gives it:
+    with ``reduced.force_fields`` loop the one fitted to that model's loop fields
+    (:func:`loop_force_model_path`), but for replay (its fields are NDEM's); else
+    ``results/models/{reduced.force_model}``. ``reduced``: the config's ``reduced`` section."""
+    if reduced["force_fields"] == "ndem" or dynamics_model == "replay":
+        return model_path(results, reduced["force_model"])
+    return loop_force_model_path(results, dynamics_model)
+
+
 def adaptive_path(kind: str, results: str | Path, round_index: int, model: str = "") -> Path:
     """A round's file of an adaptive sweep: ``kind`` one of the ``adaptive_*`` keys of
     :data:`PATHS` (``model`` for a round's model and validation)."""

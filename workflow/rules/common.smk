@@ -206,13 +206,9 @@ def train_dynamics_priority(wildcards):
 
 
 def reduce_force_model(wildcards):
-    """The force model of a dynamics model's held-out runs (rule reduce). With
-    reduced.force_fields loop, the one trained on this dynamics model's loop fields, but for
-    replay (its fields are NDEM's); else results/models/{force_model}."""
-    r = config["reduced"]
-    if r["force_fields"] == "ndem" or wildcards.dynamics_model == "replay":
-        return str(P.model_path(RESULTS, r["force_model"]))
-    return str(P.loop_force_model_path(RESULTS, wildcards.dynamics_model))
+    """The force model of a dynamics model's held-out runs (rule reduce), as
+    dozerlab.sweep.reduce_force_model_path gives it."""
+    return str(P.reduce_force_model_path(RESULTS, config["reduced"], wildcards.dynamics_model))
 
 
 TRAINING_POINTS = P.by_role(POINTS, "train")
