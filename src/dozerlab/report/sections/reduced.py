@@ -310,7 +310,10 @@ def render(ctx: Context) -> str | None:
             "Means over the held-out points. The skill is the run's figure over NDEM's twin's "
             "(NDEM again from the bed moved by a micrometre: its own reproducibility); a target "
             "counts once judged on some point and is met when every point meets it. replay "
-            "feeds the loop NDEM's own fields: a control, the loop's own error."
+            "feeds the loop NDEM's own fields: a control, the loop's own error. A speed-up "
+            "divides NDEM's time by the run's, each taken in its own job beside whatever else "
+            "the sweep ran, so it moves with the machine; benchmarks/reduce_loop.py --repeat "
+            "measures the two side by side."
             + (
                 " Force skill, expected run: the low-passed force error against the mean of the "
                 "twin draws over NDEM's own run's against it."
