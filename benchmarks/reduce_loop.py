@@ -149,7 +149,7 @@ def main() -> None:
             if args.chaos and first:
                 _chaos(bed, traj, cfg, t, ndem_store, ndem_state)
             for name in args.dynamics:
-                r = _loop(name, res, cfg, point, bed, traj, ndem_store, t / f"{name}{round_}")
+                r = run_loop(name, res, cfg, point, bed, traj, ndem_store, t / f"{name}{round_}")
                 speedups[name].append(m["wall_time_s"] / r["wall_time_s"])
                 phases = ", ".join(f"{k[3:]} {v:.2f}" for k, v in r.items() if k.startswith("ms_"))
                 print(
@@ -208,7 +208,7 @@ def _chaos(
     print(f"    smoothed surface {acc:.3f}, low-passed force x rel. RMSE {flp:.3f}")
 
 
-def _loop(
+def run_loop(
     name: str,
     res: Path,
     cfg: dict[str, Any],
