@@ -111,7 +111,7 @@ class ReducedSettings:
     advect_margin: float = 2.0
     crest_bins: float = 0.0
     rest_speed: float = 0.05
-    support_angle: float = 60.0
+    support_angle: float = 45.0
     divergence_overlap: float = 0.5
     #: the evolution models (by name) that read their own predicted velocity as history
     predicted_history: tuple[str, ...] = ("ridge",)
