@@ -2,12 +2,11 @@
 
 :class:`RidgeInference` computes what :meth:`DynamicsModel.forward
 <dozerlab.learn.dynamics.models.DynamicsModel.forward>` computes for a ``ridge`` model, to
-float32 round-off, in one pass each for the advection, the normalised stencil slabs and the
-correction, around the stencil's grouped convolutions (torch's, the one costly part). The
-terms that do not change between calls — the position's and bias's, the kernels — are made
-once. On the default grid a call takes 1.1–1.8 ms against the module's 2.6–2.8 ms, most of
-which were the many small tensor operations around the convolutions (BENCHMARKS.md, "The
-ridge's inference in the loop").
+float32 round-off, in two compiled passes: the advection, then the stencil's sums with the
+correction and clamps (:func:`correct_rows`). The terms that do not change between calls (the
+position's and bias's, the weights in the order the sums read them) are made once. On the
+default sweep's ridge a call takes 0.9 ms against 1.6 ms through torch's grouped convolutions
+and 2.3 ms through the module (BENCHMARKS.md, "The ridge's stencil sums compiled").
 """
 
 from __future__ import annotations
@@ -15,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 from numba import njit
-from torch.nn import functional as F
 
 from dozerlab.learn.dynamics.advection import EMPTY_DENSITY
 from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
@@ -83,89 +81,165 @@ def advect_row(rho, vel, shift, scale):  # pragma: no cover - compiled
     return rho_new, v_new
 
 
-@njit(cache=True)
-def stencil_slabs(
-    hist_rho, hist_v, blade_v, base_rho, base_v, mean, std, boxes
+#: Bins along y summed at once against one layer's weights (the four sums s0-s3 of
+#: :func:`correct_rows`): each weight read serves four bins. One bin at a time the reads bound
+#: the sums (BENCHMARKS.md, "The ridge's stencil sums compiled").
+BLOCK = 4
+
+
+@njit(cache=True, fastmath={"reassoc", "contract"})
+def correct_rows(
+    hist_rho,
+    hist_v,
+    blade_v,
+    base_rho,
+    base_v,
+    mean,
+    std,
+    weight,
+    blank_weight,
+    const,
+    ctl_w,
+    cond,
+    box_of,
+    res_std,
+    rho_hi,
+    v_lo,
+    v_hi,
 ):  # pragma: no cover - compiled
-    """The normalised channels of H history rows (``hist_rho`` (H, X, Y, Z), ``hist_v``
-    (H, X, Y, Z, 3)) and m advected rows (``base_rho``, ``base_v``), velocities relative to
-    ``blade_v`` (H + m, 3), as :class:`RidgeStencil`'s slabs of each of ``boxes`` (K, 4)
-    (y0, y1, z0, z1), back to back in one float32 buffer: box k's is (X·C·3, y1 − y0 + 2,
-    z1 − z0 + 2), slab x·3C + 3c + i the layer x + i − 1 of channel c, edges replicated (one
-    contiguous input per convolution: a view into one padded grid cost 40 % more)."""
+    """The ridge's correction of the m advected rows (``base_rho`` (m, X, Y, Z) kg/m³,
+    ``base_v`` (m, X, Y, Z, 3) m/s) from H history rows (``hist_rho``, ``hist_v``), the
+    velocities relative to ``blade_v`` (H + m, 3) m/s, kept within the training range as
+    :meth:`DynamicsModel.correct <dozerlab.learn.dynamics.models.DynamicsModel.correct>` does.
+    Returns velocity (m, X, Y, Z, 3) and density (m, X, Y, Z).
+
+    The model is linear, so each bin's channels are split into a blank bin's (no material, at
+    rest: the same everywhere for a given blade velocity) and the fields over their spreads
+    (zero in a blank bin). The blank part's sum over a neighbourhood is made once per layer
+    and box from ``blank_weight`` (X, boxes, 4(H + m), 4m), the stencil's weights summed over
+    the 27 neighbours; the rest from ``weight`` (X, boxes, 4m, 27·4(H + m)), the neighbours
+    (i, j, k) and channels of a bin in the order they lie in the channel-last grid, skipped
+    where a bin's neighbourhood holds nothing. ``const`` (X, 4m, Y, Z) the position's and bias's
+    terms, ``ctl_w`` (X, boxes, 3(H + m), 4m) the control's weights times ``cond``, the
+    normalised control, ``box_of`` (Y, Z) each bin's box, ``mean`` and ``std`` the channels'
+    normalisation, ``res_std`` (4,) the residuals' spreads."""
     h, nx, ny, nz = hist_rho.shape
-    rows = h + base_rho.shape[0]
-    ch = FIELD_CHANNELS * rows
-    pad = np.empty((ch, nx + 2, ny + 2, nz + 2), np.float32)
+    m = base_rho.shape[0]
+    ch = FIELD_CHANNELS * (h + m)
+    outs = FIELD_CHANNELS * m
+    nb = ctl_w.shape[1]
+    line = 3 * ch  # three bins along z and their channels
+    # the fields over the channels' spreads, channel last, edges replicated (the stencil's
+    # padding), and which padded bins hold anything
+    py, pz = ny + 2, nz + 2
+    grid = np.empty((nx + 2) * py * pz * ch, np.float32)
+    filled = np.zeros((nx + 2, py, pz), np.bool_)
+    inv = np.float32(1.0) / std
+    for xp in range(nx + 2):
+        x = min(max(xp - 1, 0), nx - 1)
+        for yp in range(py):
+            y = min(max(yp - 1, 0), ny - 1)
+            for zp in range(pz):
+                z = min(max(zp - 1, 0), nz - 1)
+                at = ((xp * py + yp) * pz + zp) * ch
+                full = False
+                for row in range(h + m):
+                    c = FIELD_CHANNELS * row
+                    r = hist_rho[row, x, y, z] if row < h else base_rho[row - h, x, y, z]
+                    full |= r != 0.0
+                    grid[at + c] = r * inv[c]
+                    for a in range(3):
+                        if row < h:
+                            v = hist_v[row, x, y, z, a]
+                        else:
+                            v = base_v[row - h, x, y, z, a]
+                        full |= v != 0.0
+                        grid[at + c + 1 + a] = v * inv[c + 1 + a]
+                filled[xp, yp, zp] = full
+    blank = np.empty(ch, np.float32)
     for c in range(ch):
         row, comp = c // FIELD_CHANNELS, c % FIELD_CHANNELS
-        for i in range(nx + 2):
-            xs = min(max(i - 1, 0), nx - 1)
-            for j in range(ny + 2):
-                ys = min(max(j - 1, 0), ny - 1)
-                for k in range(nz + 2):
-                    zs = min(max(k - 1, 0), nz - 1)
-                    if row < h:
-                        if comp == 0:
-                            val = hist_rho[row, xs, ys, zs]
-                        else:
-                            val = hist_v[row, xs, ys, zs, comp - 1] - blade_v[row, comp - 1]
-                    elif comp == 0:
-                        val = base_rho[row - h, xs, ys, zs]
-                    else:
-                        val = base_v[row - h, xs, ys, zs, comp - 1] - blade_v[row, comp - 1]
-                    pad[c, i, j, k] = (val - mean[c]) / std[c]
-    size = 0
-    for b in range(boxes.shape[0]):
-        size += nx * ch * 3 * (boxes[b, 1] - boxes[b, 0] + 2) * (boxes[b, 3] - boxes[b, 2] + 2)
-    out = np.empty(size, np.float32)
-    p = 0
-    for b in range(boxes.shape[0]):
-        y0, y1, z0, z1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
-        for x in range(nx):
-            for c in range(ch):
-                for i in range(3):
-                    for j in range(y0, y1 + 2):
-                        for k in range(z0, z1 + 2):
-                            out[p] = pad[c, x + i, j, k]
-                            p += 1
-    return out
-
-
-@njit(cache=True)
-def finish(
-    conv, const, ctl_w, cond, box_of, res_std, base_rho, base_v, rho_hi, v_lo, v_hi
-):  # pragma: no cover - compiled
-    """The stencil's sums ``conv`` (X, 4m, Y, Z) plus its constant terms ``const`` (same
-    shape: position and bias) and control terms (``ctl_w`` (X, boxes, cond, 4m) times the
-    normalised control ``cond``; ``box_of`` (Y, Z) each bin's box), in residual spreads
-    ``res_std`` (4,), added to the advected rows and kept within the training range, as
-    :meth:`DynamicsModel.correct`. Returns velocity (m, X, Y, Z, 3) and density (m, X, Y, Z)."""
-    nx, outs, ny, nz = conv.shape
-    m = outs // FIELD_CHANNELS
-    nb, nc = ctl_w.shape[1], ctl_w.shape[2]
-    ctl = np.zeros((nx, nb, outs), np.float32)
+        raw = np.float32(0.0) if comp == 0 else -blade_v[row, comp - 1]
+        blank[c] = (raw - mean[c]) * inv[c]
+    fixed = np.zeros((nx, nb, outs), np.float32)
     for x in range(nx):
         for b in range(nb):
             for o in range(outs):
                 acc = np.float32(0.0)
-                for q in range(nc):
+                for c in range(ch):
+                    acc += blank[c] * blank_weight[x, b, c, o]
+                for q in range(cond.shape[0]):
                     acc += cond[q] * ctl_w[x, b, q, o]
-                ctl[x, b, o] = acc
+                fixed[x, b, o] = acc
+    # each padded bin's channels beside those of the two bins above it, laid out (x, z, y, ·):
+    # the 3 × 3 × 3 neighbourhood of bin (x, y, z) is then three runs of `seg` floats, one per
+    # layer x + i at (x + i, z, y), the order of `weight`'s rows (a copy of each bin's
+    # neighbourhood took half the call's time; BENCHMARKS.md)
+    seg = 3 * line
+    lines = np.empty((nx + 2) * nz * py * line, np.float32)
+    for xp in range(nx + 2):
+        for z in range(nz):
+            for yp in range(py):
+                dst = ((xp * nz + z) * py + yp) * line
+                src = ((xp * py + yp) * pz + z) * ch
+                lines[dst : dst + line] = grid[src : src + line]
+    last = lines.size - seg
+    sums = np.zeros((BLOCK, outs), np.float32)
     rho = np.empty((m, nx, ny, nz), np.float32)
     vel = np.empty((m, nx, ny, nz, 3), np.float32)
     for x in range(nx):
-        for y in range(ny):
-            for z in range(nz):
-                b = box_of[y, z]
-                for j in range(m):
-                    f = FIELD_CHANNELS * j
-                    r = (conv[x, f, y, z] + const[x, f, y, z] + ctl[x, b, f]) * res_std[0]
-                    rho[j, x, y, z] = min(max(base_rho[j, x, y, z] + r, np.float32(0.0)), rho_hi)
-                    for a in range(3):
-                        o = f + 1 + a
-                        r = (conv[x, o, y, z] + const[x, o, y, z] + ctl[x, b, o]) * res_std[1 + a]
-                        vel[j, x, y, z, a] = max(min(base_v[j, x, y, z, a] + r, v_hi[a]), v_lo[a])
+        for z in range(nz):
+            y0 = 0
+            while y0 < ny:
+                b = box_of[y0, z]
+                n = 1
+                while n < BLOCK and y0 + n < ny and box_of[y0 + n, z] == b:
+                    n += 1
+                seen = False
+                for i in range(3):
+                    for j in range(n + 2):
+                        for k in range(3):
+                            seen |= filled[x + i, y0 + j, z + k]
+                if seen:
+                    # a block shorter than BLOCK reads the bins after it too (the padding, or
+                    # the next block's): summed, not used
+                    for o in range(outs):
+                        s0 = np.float32(0.0)
+                        s1 = np.float32(0.0)
+                        s2 = np.float32(0.0)
+                        s3 = np.float32(0.0)
+                        for i in range(3):
+                            at = (((x + i) * nz + z) * py + y0) * line
+                            # views: an index computed in the loop costs a check for negative
+                            # values at each read, and the sums were not vectorised (7x slower)
+                            w = weight[x, b, o, i * seg : (i + 1) * seg]
+                            l0 = lines[at : at + seg]
+                            l1 = lines[min(at + line, last) :]
+                            l2 = lines[min(at + 2 * line, last) :]
+                            l3 = lines[min(at + 3 * line, last) :]
+                            for t in range(seg):
+                                s0 += l0[t] * w[t]
+                                s1 += l1[t] * w[t]
+                                s2 += l2[t] * w[t]
+                                s3 += l3[t] * w[t]
+                        sums[0, o], sums[1, o], sums[2, o], sums[3, o] = s0, s1, s2, s3
+                else:
+                    sums[:] = 0.0
+                for q in range(n):
+                    y = y0 + q
+                    for j in range(m):
+                        f = FIELD_CHANNELS * j
+                        r = (sums[q, f] + fixed[x, b, f] + const[x, f, y, z]) * res_std[0]
+                        rho[j, x, y, z] = min(
+                            max(base_rho[j, x, y, z] + r, np.float32(0.0)), rho_hi
+                        )
+                        for a in range(3):
+                            o = f + 1 + a
+                            r = (sums[q, o] + fixed[x, b, o] + const[x, o, y, z]) * res_std[1 + a]
+                            vel[j, x, y, z, a] = max(
+                                min(base_v[j, x, y, z, a] + r, v_hi[a]), v_lo[a]
+                            )
+                y0 += n
     return vel, rho
 
 
@@ -190,25 +264,20 @@ class RidgeInference:
         nx, ny, nz = self.grid
         ch = FIELD_CHANNELS * (self.history + self.horizon)
         d, outs = 27 * ch, FIELD_CHANNELS * self.horizon
-        self.boxes = list(net.boxes)
-        self.box_array = np.array(self.boxes, np.int64).reshape(-1, 4)
+        boxes = list(net.boxes)
         with torch.no_grad():
             w, bias = net.weight.detach().float().cpu(), net.bias.detach().float().cpu()
             pos = model.coords.cpu().permute(1, 2, 3, 0)
-            self.kernels = [
-                w[:, k, :d]
-                .reshape(nx, ch, 3, 3, 3, outs)
-                .permute(0, 5, 1, 2, 3, 4)
-                .reshape(nx * outs, ch * 3, 3, 3)
-                .contiguous()
-                for k in range(len(self.boxes))
-            ]
+            # weight row c·27 + n (n = 9i + 3j + k) → (layer, box, output, n·C + c)
+            stencil = w[:, :, :d].reshape(nx, len(boxes), ch, 27, outs)
+            weight = stencil.permute(0, 1, 4, 3, 2).reshape(nx, len(boxes), outs, d)
             const = torch.zeros(nx, outs, ny, nz)
             box_of = np.zeros((ny, nz), np.int64)
-            for k, (y0, y1, z0, z1) in enumerate(self.boxes):
+            for k, (y0, y1, z0, z1) in enumerate(boxes):
                 lin = torch.einsum("xyzp,xpo->xoyz", pos[:, y0:y1, z0:z1], w[:, k, d : d + 3])
                 const[:, :, y0:y1, z0:z1] = lin + bias[:, k, :, None, None]
                 box_of[y0:y1, z0:z1] = k
+        self.weight, self.blank_weight = _numpy(weight), _numpy(stencil.sum(dim=3))
         self.const, self.box_of = _numpy(const), box_of
         self.ctl_w = _numpy(w[:, :, d + 3 :])
         self.chan_mean, self.chan_std = _numpy(model.chan_mean), _numpy(model.chan_std)
@@ -241,30 +310,22 @@ class RidgeInference:
         for j in range(m):
             r, u = advect_row(r, u, vb[h + j] * self.scale, self.scale)
             base_rho[j], base_v[j] = r, u
-        buf = torch.from_numpy(
-            stencil_slabs(
-                rho, v, vb, base_rho, base_v, self.chan_mean, self.chan_std, self.box_array
-            )
-        )
-        conv = np.empty((nx, FIELD_CHANNELS * m, ny, nz), np.float32)
-        at = 0
-        with torch.no_grad():
-            for kernel, (y0, y1, z0, z1) in zip(self.kernels, self.boxes, strict=True):
-                shape = (1, kernel.shape[1] * nx, y1 - y0 + 2, z1 - z0 + 2)
-                size = shape[1] * shape[2] * shape[3]
-                part = F.conv2d(buf[at : at + size].view(shape), kernel, groups=nx)
-                conv[:, :, y0:y1, z0:z1] = part.view(nx, -1, y1 - y0, z1 - z0).numpy()
-                at += size
         cond = (vb.reshape(-1) - self.cond_mean) / self.cond_std
-        return finish(
-            conv,
+        return correct_rows(
+            rho,
+            v,
+            vb,
+            base_rho,
+            base_v,
+            self.chan_mean,
+            self.chan_std,
+            self.weight,
+            self.blank_weight,
             self.const,
             self.ctl_w,
             cond,
             self.box_of,
             self.res_std,
-            base_rho,
-            base_v,
             self.rho_hi,
             self.v_lo,
             self.v_hi,
