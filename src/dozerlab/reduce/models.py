@@ -108,7 +108,7 @@ class PyfuncFieldModel:
         self.history = int(self.module.history)
         self.horizon = int(self.module.horizon)
         self.grid = grid
-        # the ridge's forward compiled: 0.9 ms a call against the module's 2.3 ms on the
+        # the ridge's forward compiled: 0.9 ms a call against the module's 3.5-4.0 ms on the
         # default grid (BENCHMARKS.md, "The ridge's stencil sums compiled")
         self.ridge = RidgeInference(self.module) if self.module.kind == "ridge" else None
 

@@ -6,7 +6,7 @@ float32 round-off, in two compiled passes: the advection, then the stencil's sum
 correction and clamps (:func:`correct_rows`). The terms that do not change between calls (the
 position's and bias's, the weights in the order the sums read them) are made once. On the
 default sweep's ridge a call takes 0.9 ms against 1.6 ms through torch's grouped convolutions
-and 2.3 ms through the module (BENCHMARKS.md, "The ridge's stencil sums compiled").
+and 3.5–4.0 ms through the module (BENCHMARKS.md, "The ridge's stencil sums compiled").
 """
 
 from __future__ import annotations
