@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dozerlab.ndem import broadphase
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce import projection
 from dozerlab.reduce.compare import body_penetration
@@ -192,18 +193,22 @@ def test_ripples_below_the_quiet_share_wake_no_contacts_and_the_pile_still_conve
         quiet, r, w, pi, pj, *args, True, projection.QUIET * tolerance
     )
     assert tests_quiet < 0.75 * tests_every
-    left_every = projection._largest_overlap(every, r, w, pi, pj)
-    left_quiet = projection._largest_overlap(quiet, r, w, pi, pj)
+    left_every = projection._largest_overlap(every, r, pi, pj)
+    left_quiet = projection._largest_overlap(quiet, r, pi, pj)
     assert left_quiet < 0.05 + 2 * tolerance
     assert left_quiet == pytest.approx(left_every, abs=tolerance)
 
 
-@pytest.mark.parametrize("obstacles", ["every third", "the lower half"])
+@pytest.mark.parametrize("obstacles", ["every third", "the lower half", "none, heaped"])
 def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles(obstacles):
     # obstacles scattered, or filling whole cells (as the ring around a step's movers does),
-    # whose pairs with each other the scan skips cell by cell
+    # whose pairs with each other the scan skips cell by cell; or grains heaped into each other,
+    # more pairs than the first list has room for
     x, r, _ = pile(150, seed=7)
-    if obstacles == "every third":
+    if obstacles == "none, heaped":
+        x = x[0] + 0.15 * (x - x[0])
+        w = np.ones(150)
+    elif obstacles == "every third":
         w = np.where(np.arange(150) % 3 == 0, 0.0, 1.0)
     else:
         w = np.where(x[:, 2] < np.median(x[:, 2]), 0.0, 1.0)
@@ -217,6 +222,7 @@ def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles(o
     perm, *_, pa, pb = cell_sorted(x, r, w, 0.11, reach)  # cells >= the largest reach sum
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
+    assert (len(want) > 8 * 150 + 16) == (obstacles == "none, heaped")
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -245,17 +251,43 @@ def test_spheres_near_lists_those_within_the_margin_of_a_body():
 
 
 def test_the_search_around_moved_spheres_finds_what_a_search_of_every_pair_finds():
+    # the grid sorts the spheres where they stood; since, every sphere moved up to the margin
+    # and those of ``which`` anywhere (into each other too): the search on the old grid finds
+    # what a search of every pair at the new positions finds
     rng = np.random.default_rng(11)
-    x = rng.uniform([0.0, -0.3, 0.0], [0.6, 0.3, 0.3], size=(400, 3))
-    r = rng.uniform(0.02, 0.03, 400)
-    inv_m = (rng.uniform(size=400) < 0.7).astype(float)
-    which = rng.choice(400, 40, replace=False)
-    i, j = np.triu_indices(400, 1)
-    around = np.isin(i, which) | np.isin(j, which)
+    n, margin = 400, 0.01
+    start = rng.uniform([0.0, -0.3, 0.0], [0.6, 0.3, 0.3], size=(n, 3))
+    r = rng.uniform(0.02, 0.03, n)
+    inv_m = (rng.uniform(size=n) < 0.7).astype(float)
+    which = rng.choice(n, 40, replace=False)
+    step = rng.normal(size=(n, 3))
+    x = start + margin * rng.uniform(size=(n, 1)) * step / np.linalg.norm(step, axis=1)[:, None]
+    x[which] = rng.uniform([0.0, -0.3, 0.0], [0.6, 0.3, 0.3], size=(40, 3))
+    # two far movers touching each other above the rest: they stood nowhere near
+    x[which[0]], x[which[1]] = [0.3, 0.0, 0.5], [0.33, 0.0, 0.5]
+    inv_m[which[:2]] = 1.0
+    lo, cell, dims = broadphase.grid_layout(start, float(r.max()) + margin, 8 * n)
+    perm, *_, cells, _ = projection._by_cell(start, r, inv_m, lo, cell, dims)
+    grid = projection.CellGrid(lo, cell, dims, perm, cells)
+    i, j = np.triu_indices(n, 1)
     movable = (inv_m[i] > 0) | (inv_m[j] > 0)
     gap = r[i] + r[j] - np.linalg.norm(x[i] - x[j], axis=1)
-    keep = around & movable & (gap > 0)
-    want = float((gap[keep] / np.minimum(r[i], r[j])[keep]).max())
-    assert want > 0
-    assert projection._largest_overlap_around(x, r, inv_m, which) == pytest.approx(want, rel=1e-12)
-    assert projection._largest_overlap_around(x, r, inv_m, which[:0]) == 0.0
+    share = gap / np.minimum(r[i], r[j])
+
+    def want(around: np.ndarray) -> float:
+        keep = around & movable & (gap > 0)
+        return float(share[keep].max()) if keep.any() else 0.0
+
+    every = want(np.isin(i, which) | np.isin(j, which))
+    pair = want((i == min(which[:2])) & (j == max(which[:2])))
+    assert every > 0 and pair > 0.4
+    assert projection._largest_overlap_around(x, r, inv_m, which, grid) == pytest.approx(
+        every, rel=1e-12
+    )
+    assert projection._largest_overlap_around(x, r, inv_m, which[:2], grid) == pytest.approx(
+        pair, rel=1e-12
+    )
+    for a in which[2:]:  # each mover alone: its contacts across the cells as well as in its own
+        got = projection._largest_overlap_around(x, r, inv_m, np.array([a]), grid)
+        assert got == pytest.approx(want((i == a) | (j == a)), rel=1e-12, abs=1e-15)
+    assert projection._largest_overlap_around(x, r, inv_m, which[:0], grid) == 0.0

@@ -16,7 +16,8 @@ correction is within ``tolerance`` (see :func:`project`): most of a step's conta
 bed's, resolved in the first sweep. A last pass pushes every sphere fully out of the bodies, so
 no sphere ends inside the ground, a wall or the blade whatever the iteration count. The largest
 overlap reported is every pair's: the list holds every contact while no sphere has moved more
-than the margin since it was made, and past that a fresh search checks, and projects again.
+than the margin since it was made, and past that a search around the spheres that did (on the
+list's own cell grid) checks, and projects again.
 """
 
 from __future__ import annotations
@@ -64,45 +65,70 @@ def _pair_overlap(x, radii, i, j):  # pragma: no cover - compiled
 @njit(cache=True)
 def _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb):  # pragma: no cover - compiled
     """Count the pairs (a, b), a < b, closer than reach_a + reach_b and not both obstacles
-    (``inv_m`` 0: the projection leaves such a pair alone); write the first pa.size.
+    (``inv_m`` 0: the projection leaves such a pair alone), and write them into ``pa``/``pb``
+    while the candidates of a run fit: returns the count and whether every pair was written.
 
     Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
-    slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself). An
-    obstacle meets no cell without a movable sphere (``movable`` (cells,) counts them): the
-    ring of obstacles is about half of a reduced step's spheres, and skipping its cells saved
-    6-22 % of the scan (BENCHMARKS.md, "... the ring's cells left out of the contact search").
+    slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself). Those
+    neighbours lie in five runs of slots, three cells along z each (the cell's own run from
+    itself up), so a sphere meets each run in one loop: a loop per cell cost 12 % more, most of
+    it in the short loops' setup (BENCHMARKS.md, "The projection's contact list, cheaper").
+    Every candidate is written and the count advances only for a pair (no branch to mispredict
+    on one test in eight). An obstacle meets no run without a movable sphere (``movable``
+    (cells,) counts them): the ring of obstacles is about half of a reduced step's spheres, and
+    skipping its cells saved 6-22 % of the scan (BENCHMARKS.md, "... the ring's cells left out
+    of the contact search").
     """
     k = 0
+    complete = True
+    nz = dims[2]
+    lo_b = np.empty(5, np.int64)
+    hi_b = np.empty(5, np.int64)
+    mv = np.empty(5, np.int64)
     for cx in range(dims[0]):
         for cy in range(dims[1]):
-            for cz in range(dims[2]):
-                c = (cx * dims[1] + cy) * dims[2] + cz
+            row = (cx * dims[1] + cy) * nz
+            for cz in range(nz):
+                c = row + cz
                 if start[c] == start[c + 1]:
                     continue
+                z0, z1 = max(cz - 1, 0), min(cz + 1, nz - 1)
+                lo_b[0], hi_b[0] = start[c], start[row + z1 + 1]
+                mv[0] = movable[c] + (movable[c + 1] if z1 > cz else 0)
+                runs = 1
+                any_movable = mv[0] > 0
                 for ix in range(cx, min(cx + 2, dims[0])):
                     for iy in range(max(cy - 1, 0), min(cy + 2, dims[1])):
-                        if ix == cx and iy < cy:
+                        if ix == cx and iy <= cy:
                             continue
-                        for iz in range(max(cz - 1, 0), min(cz + 2, dims[2])):
-                            q = (ix * dims[1] + iy) * dims[2] + iz
-                            if q < c or (movable[c] == 0 and movable[q] == 0):
-                                continue
-                            for a in range(start[c], start[c + 1]):
-                                if inv_m[a] <= 0.0 and movable[q] == 0:
-                                    continue
-                                xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
-                                for b in range(max(start[q], a + 1), start[q + 1]):
-                                    if inv_m[a] <= 0.0 and inv_m[b] <= 0.0:
-                                        continue
-                                    d0 = xa0 - x[b, 0]
-                                    d1 = xa1 - x[b, 1]
-                                    d2 = xa2 - x[b, 2]
-                                    s = ra + reach[b]
-                                    if d0 * d0 + d1 * d1 + d2 * d2 < s * s:
-                                        if k < pa.size:
-                                            pa[k], pb[k] = a, b
-                                        k += 1
-    return k
+                        r2 = (ix * dims[1] + iy) * nz
+                        lo_b[runs], hi_b[runs] = start[r2 + z0], start[r2 + z1 + 1]
+                        m = 0
+                        for z in range(z0, z1 + 1):
+                            m += movable[r2 + z]
+                        mv[runs] = m
+                        any_movable = any_movable or m > 0
+                        runs += 1
+                if movable[c] == 0 and not any_movable:
+                    continue
+                for a in range(start[c], start[c + 1]):
+                    wa = inv_m[a] > 0.0
+                    xa0, xa1, xa2, ra = x[a, 0], x[a, 1], x[a, 2], reach[a]
+                    for t in range(runs):
+                        if not wa and mv[t] == 0:
+                            continue
+                        b0, b1 = max(lo_b[t], a + 1), hi_b[t]
+                        room = k + (b1 - b0) <= pa.size
+                        complete = complete and room
+                        for b in range(b0, b1):
+                            d0 = xa0 - x[b, 0]
+                            d1 = xa1 - x[b, 1]
+                            d2 = xa2 - x[b, 2]
+                            s = ra + reach[b]
+                            if room:
+                                pa[k], pb[k] = a, b
+                            k += (d0 * d0 + d1 * d1 + d2 * d2 < s * s) & (wa | (inv_m[b] > 0.0))
+    return k, complete
 
 
 @njit(cache=True)
@@ -139,10 +165,13 @@ def _pairs_sorted(x, reach, inv_m, start, movable, dims):  # pragma: no cover - 
     """
     pa = np.empty(8 * x.shape[0] + 16, np.int64)
     pb = np.empty_like(pa)
-    k = _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb)
-    if k > pa.size:  # a packing denser than 16 candidates a sphere (overlapping grains): again
-        pa, pb = np.empty(k, np.int64), np.empty(k, np.int64)
-        _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb)
+    k, complete = _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb)
+    if not complete:
+        # a packing denser than 8 pairs a sphere (overlapping grains): again, with room for
+        # them and for any run's candidates after them
+        pa = np.empty(k + x.shape[0], np.int64)
+        pb = np.empty_like(pa)
+        k, _ = _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb)
     return pa[:k], pb[:k]
 
 
@@ -467,15 +496,21 @@ def _push_out_of_bodies(x, radii, bi, bb, kind, bpos, brot, bext, bnormal):  # p
 
 
 @njit(cache=True)
-def _largest_overlap(x, radii, inv_m, pi, pj):  # pragma: no cover - compiled
-    """Largest overlap over the smaller radius of the pairs with a movable sphere (0 if none)."""
+def _largest_overlap(x, radii, pi, pj):  # pragma: no cover - compiled
+    """Largest overlap over the smaller radius of the pairs ``pi``/``pj`` (0 if none overlaps).
+
+    Every pair's gap is taken, touching or not, and the largest kept: after the sweeps about
+    half of the listed pairs touch (at the slop), and a branch on it cost 3.4 times as long
+    (BENCHMARKS.md, "The projection's contact list, cheaper").
+    """
     worst = 0.0
     for k in range(pi.shape[0]):
-        if inv_m[pi[k]] <= 0.0 and inv_m[pj[k]] <= 0.0:
-            continue
-        g = _pair_overlap(x, radii, pi[k], pj[k])
-        if g > 0.0:
-            worst = max(worst, g / min(radii[pi[k]], radii[pj[k]]))
+        i, j = pi[k], pj[k]
+        d0 = x[i, 0] - x[j, 0]
+        d1 = x[i, 1] - x[j, 1]
+        d2 = x[i, 2] - x[j, 2]
+        ri, rj = radii[i], radii[j]
+        worst = max(worst, (ri + rj - np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)) / min(ri, rj))
     return worst
 
 
@@ -539,9 +574,10 @@ def project(
             by less than ``QUIET`` times it does not send its contacts to be tested again.
         overlap_limit: a round whose sweeps leave a larger overlap (fraction of the smaller
             radius; they ran out of ``iterations``) is followed by another, up to ``ROUNDS``.
-        margin: contact search margin, m (default: half the smallest radius): contacts that
-            close during the projection are caught if they start within it; a sphere moved
-            further sends the projection to a fresh contact search (up to ``ROUNDS`` rounds).
+        margin: contact search margin, m (default: ``MARGIN`` times the smallest radius):
+            contacts that close during the projection are caught if they start within it; a
+            sphere moved further sends the projection to a search around it (and to another
+            round, up to ``ROUNDS``, where that finds a deeper overlap).
 
     Returns the stats; ``max_overlap`` covers every pair with a movable sphere.
     """
@@ -557,12 +593,12 @@ def project(
         return ProjectionStats(0.0, 0.0, 0, 0)
     r0 = np.asarray(radii, dtype=np.float64)
     w0 = np.asarray(inv_mass, dtype=np.float64)
-    m = 0.5 * float(r0.min()) if margin is None else float(margin)
+    m = MARGIN * float(r0.min()) if margin is None else float(margin)
     settings = (int(iterations), method == "gauss_seidel", float(relaxation), float(slop))
     total = ProjectionStats(0.0, 0.0, 0, 0)
     for _ in range(ROUNDS):
         start = np.array(x, dtype=np.float64)
-        total.max_overlap, st = _round(x, r0, w0, m, bodies, *settings, float(tolerance))
+        total.max_overlap, st, grid = _round(x, r0, w0, m, bodies, *settings, float(tolerance))
         total.body_depth = max(total.body_depth, st.body_depth)
         total.pairs, total.body_contacts = st.pairs, st.body_contacts
         total.sweeps += st.sweeps
@@ -574,7 +610,7 @@ def project(
         # at 1.5 m/s, where some sphere moved that far in nearly every step; BENCHMARKS.md).
         far = _moved_beyond(x, start, m)
         if far.size:
-            fresh = _largest_overlap_around(x, r0, w0, far)
+            fresh = _largest_overlap_around(x, r0, w0, far, grid)
             if fresh > total.max_overlap:
                 total.max_overlap = fresh
                 continue
@@ -600,9 +636,12 @@ def _moved_beyond(x, start, distance):  # pragma: no cover - compiled
 @njit(cache=True)
 def _overlap_around(x, radii, inv_m, which, lo, cell, dims, order, start):  # pragma: no cover
     """Largest overlap over the smaller radius of the pairs of a sphere of ``which`` with any
-    other, at least one of the two movable; ``order``/``start`` the spheres by cell."""
+    other, at least one of the two movable: the others from the 27 cells around its cell of
+    the grid (``lo``, ``cell``, ``dims``; ``order``/``start`` the spheres by cell, placed where
+    they were when it was made), those of ``which`` each with each."""
     worst = 0.0
-    for a in which:
+    for s in range(which.size):
+        a = which[s]
         ca = np.empty(3, np.int64)
         for d in range(3):
             ca[d] = min(max(int((x[a, d] - lo[d]) / cell), 0), dims[d] - 1)
@@ -617,18 +656,46 @@ def _overlap_around(x, radii, inv_m, which, lo, cell, dims, order, start):  # pr
                         g = _pair_overlap(x, radii, a, b)
                         if g > 0.0:
                             worst = max(worst, g / min(radii[a], radii[b]))
+        for t in range(s + 1, which.size):
+            b = which[t]
+            if inv_m[a] <= 0.0 and inv_m[b] <= 0.0:
+                continue
+            g = _pair_overlap(x, radii, a, b)
+            if g > 0.0:
+                worst = max(worst, g / min(radii[a], radii[b]))
     return worst
 
 
+@dataclass(frozen=True)
+class CellGrid:
+    """Spheres sorted by the cells of a grid where they stood: origin ``lo`` (3,) m, cell edge
+    ``cell`` m, cell counts ``dims`` (3,), ``order`` (N,) slot → sphere, ``start`` (cells + 1,)
+    each cell's first slot."""
+
+    lo: np.ndarray
+    cell: float
+    dims: np.ndarray
+    order: np.ndarray
+    start: np.ndarray
+
+
 def _largest_overlap_around(
-    x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray, which: np.ndarray
+    x: np.ndarray, radii: np.ndarray, inv_mass: np.ndarray, which: np.ndarray, grid: CellGrid
 ) -> float:
     """:func:`largest_movable_overlap` over the pairs with a sphere of ``which`` (K,) indices
-    into ``x`` (N, 3) m, by a fresh search around those spheres alone (0 when none overlap)."""
-    lo, cell, dims = broadphase.grid_layout(x, float(radii.max()), max(8 * x.shape[0], 4096))
-    cells = broadphase.cell_indices(x, lo, cell, dims)
-    order, start = broadphase.counting_sort(cells, int(np.prod(dims)))
-    return float(_overlap_around(x, radii, inv_mass, which, lo, cell, dims, order, start))
+    into ``x`` (N, 3) m, searched around those spheres alone (0 when none overlap).
+
+    ``grid`` sorts the spheres where they stood before they moved; every sphere but those of
+    ``which`` has moved at most cell/2 − max radius since, so a sphere touching one of
+    ``which`` now stood within a cell of it (the projection's round grid, cells of twice the
+    largest radius plus margin, and its margin: a fresh grid of every sphere cost as much as
+    the rest of the search; BENCHMARKS.md, "The projection's contact list, cheaper").
+    """
+    return float(
+        _overlap_around(
+            x, radii, inv_mass, which, grid.lo, grid.cell, grid.dims, grid.order, grid.start
+        )
+    )
 
 
 #: A correction smaller than this share of ``tolerance`` (times the radius) does not send a
@@ -636,6 +703,12 @@ def _largest_overlap_around(
 #: half of a step's contact tests on the default sweep's held-out points (BENCHMARKS.md,
 #: "Contacts left alone after a ripple"). A tolerance of 0 tests after every move.
 QUIET = 0.1
+
+#: The contact search's margin, as a share of the smallest radius (see :func:`project`): with
+#: 0.35 the ridge's loop projected in 0.85-1.02 of the time it took with 0.5 (fewer pairs to
+#: list and to test in the first sweep), with 0.3 in 0.89-1.09 (more rounds); BENCHMARKS.md,
+#: "The projection's contact list, cheaper".
+MARGIN = 0.35
 
 #: Projection rounds at most (each a contact search, sweeps and push-out): a round more runs
 #: only when a fresh search finds a contact overlapping more than the last round's list holds,
@@ -654,10 +727,11 @@ def _round(
     relaxation: float,
     slop: float,
     tolerance: float,
-) -> tuple[float, ProjectionStats]:
+) -> tuple[float, ProjectionStats, CellGrid]:
     """One contact search, the sweeps and the push out of the bodies on ``x`` in place.
 
-    Returns the largest overlap over the listed pairs and the round's stats.
+    Returns the largest overlap over the listed pairs, the round's stats and its grid (the
+    spheres where the round found them).
     """
     body_args = (bodies.kind, bodies.centre, bodies.rotation, bodies.half, bodies.normal)
     # sorted by cell: the sweeps walk memory forward (spatial order keeps the sweeps in cache)
@@ -687,8 +761,10 @@ def _round(
     fi, fb = _body_candidates(x_, r, w, 0.0, *body_args)
     depth = _push_out_of_bodies(x_, r, fi, fb, *body_args)
     _scatter(x, perm, x_)
-    listed = float(_largest_overlap(x_, r, w, pi, pj))
-    return listed, ProjectionStats(listed, float(depth), pi.size, bi.size, sweeps, tests)
+    # the list holds no pair of two obstacles (their overlaps are not the projection's)
+    listed = float(_largest_overlap(x_, r, pi, pj))
+    stats = ProjectionStats(listed, float(depth), pi.size, bi.size, sweeps, tests)
+    return listed, stats, CellGrid(lo, cell, dims, perm, start)
 
 
 def spheres_near(x: np.ndarray, radii: np.ndarray, bodies: Bodies, margin: float) -> np.ndarray:
