@@ -11,6 +11,7 @@ from dozerlab.learn.fitting import (
     device_for,
     guard,
     solve_ridge,
+    symmetric_product,
 )
 from dozerlab.runtime import DozerlabError
 
@@ -59,6 +60,25 @@ def test_normal_equations_in_chunks_match_the_whole_and_weights_repeat_rows():
     # without a penalty: the least-squares fit, as solve_ridge finds it
     for a, b in zip(whole.solve(0.0), solve_ridge(rows, targets, 0.0), strict=True):
         torch.testing.assert_close(a, b, atol=1e-6, rtol=0)
+
+
+def test_rows_of_weight_zero_add_nothing_and_the_symmetric_product_is_the_full_one():
+    x, y = _data(40)
+    y = y + 0.1 * torch.randn(40, 2, generator=torch.Generator().manual_seed(2), dtype=y.dtype)
+    weight = torch.rand(40, generator=torch.Generator().manual_seed(3), dtype=x.dtype)
+    weight[::3] = 0.0
+    kept, padded = NormalEquations(3, 2), NormalEquations(3, 2)
+    kept.add(x[weight > 0], y[weight > 0], weight[weight > 0])
+    wild = x.clone()
+    wild[::3] = 1e6  # rows that would dominate every sum, at weight 0
+    padded.add(wild, y, weight)
+    for a, b in zip(kept.solve(0.01), padded.solve(0.01), strict=True):
+        torch.testing.assert_close(a, b, atol=1e-10, rtol=0)
+    for d, blocks in ((3, 4), (7, 2), (10, 4), (447, 4)):
+        z = torch.randn(30, d, generator=torch.Generator().manual_seed(d), dtype=torch.float64)
+        w = torch.rand(30, 1, generator=torch.Generator().manual_seed(1), dtype=z.dtype)
+        want = (w * z).T @ z
+        torch.testing.assert_close(symmetric_product(w * z, z, blocks), want, atol=1e-9, rtol=0)
 
 
 def test_normal_equations_without_samples_are_refused():
