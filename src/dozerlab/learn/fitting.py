@@ -141,7 +141,8 @@ def solve_ridge(
 def symmetric_product(a: torch.Tensor, b: torch.Tensor, blocks: int = 4) -> torch.Tensor:
     """aᵀb (D, D) for ``a``, ``b`` (N, D) whose product is symmetric (a = W·b, W diagonal), from
     its upper block triangle: 0.56-0.71 of the full product's time for the ridge's 447 columns
-    (0.62 of its multiplications with four blocks)."""
+    (0.62 of its multiplications with four blocks; BENCHMARKS.md, "The projection's contact
+    list, cheaper")."""
     d = a.shape[1]
     edges = [d * i // blocks for i in range(blocks + 1)]
     out = a.new_empty(d, d)
@@ -169,7 +170,7 @@ class NormalEquations:
     def add(self, x: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | None = None) -> None:
         if weight is not None:
             # a row of weight 0 adds nothing to any sum: the ridge's velocity rows are weighted
-            # by density, and 41 % of the default sweep's bins are empty
+            # by density, and 41 % of the default sweep's bins are empty (BENCHMARKS.md)
             keep = weight != 0
             if not bool(keep.all()):
                 x, y, weight = x[keep], y[keep], weight[keep]

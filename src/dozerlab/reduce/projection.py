@@ -71,10 +71,9 @@ def _scan_pairs(x, reach, inv_m, start, movable, dims, pa, pb):  # pragma: no co
     Cell by cell: each cell meets itself and the 13 neighbours after it in x-major order (the
     slots of ``x`` are sorted by cell, so b > a holds across cells by the order itself). Those
     neighbours lie in five runs of slots, three cells along z each (the cell's own run from
-    itself up), so a sphere meets each run in one loop: a loop per cell cost 12 % more, most of
-    it in the short loops' setup (BENCHMARKS.md, "The projection's contact list, cheaper").
-    Every candidate is written and the count advances only for a pair (no branch to mispredict
-    on one test in eight). An obstacle meets no run without a movable sphere (``movable``
+    itself up), so a sphere meets each run in one loop: a loop per cell took 14-17 % longer
+    (BENCHMARKS.md, "The projection's contact list, cheaper"). Every candidate is written and
+    the count advances only for a pair (no branch on the one test in eight that finds one). An obstacle meets no run without a movable sphere (``movable``
     (cells,) counts them): the ring of obstacles is about half of a reduced step's spheres, and
     skipping its cells saved 6-22 % of the scan (BENCHMARKS.md, "... the ring's cells left out
     of the contact search").
