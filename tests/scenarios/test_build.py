@@ -110,6 +110,20 @@ def test_make_world_restores_the_bed_and_takes_the_blade(beds, small_config):
     )
 
 
+def test_make_world_counts_the_settled_bed_as_rested(beds, small_config):
+    # with the zone, the bed beyond the zone around the blade sleeps after the first step
+    # rather than after solver.active_zone.rest_time (0.1 s: 20 steps here) of whole solves
+    zone = {"enabled": True, "margin": 0.05}
+    config = load_config({**SMALL, "solver": {"dt": 0.005, "active_zone": zone}})
+    bed = beds["hill"]
+    world, _ = make_world(bed, config)
+    add_blade(world, start_tip(bed, config), config)
+    world.step(1)
+    far = world.positions[:, 0] > 0.2  # beyond the blade's zone
+    assert not world.state.public(world.state.awake)[far].any()
+    assert world.last_stats.active < 0.5 * bed.count
+
+
 def test_unknown_scenario_is_refused(small_config):
     with pytest.raises(ConfigError, match="scenario 'dune' is not defined"):
         build_bed("dune", small_config, progress=False)

@@ -69,12 +69,15 @@ def make_world(bed: Bed, config: dict[str, Any]) -> tuple[World, dict[str, int]]
     """A simulation world (``World.from_config(config)``) holding ``bed``.
 
     It has the ground, the start/end and side walls (module docstring) and the bed's spheres with
-    their velocities restored. Returns the world and the body ids by name: ``ground``,
-    ``wall_start``, ``wall_end``, ``wall_left``, ``wall_right``.
+    their velocities restored; those at rest count as having rested (:meth:`World.count_as_rested
+    <dozerlab.ndem.World.count_as_rested>`), so with ``solver.active_zone`` the settled bed
+    outside the zone sleeps from the first step. Returns the world and the body ids by name:
+    ``ground``, ``wall_start``, ``wall_end``, ``wall_left``, ``wall_right``.
     """
     world = World.from_config(config)
     ids = add_walls(world, bed.length, bed.width, float(config["material"]["wall_friction"]))
     _add_particles(world, bed.positions, bed.radii, config, bed.velocities, bed.angular_velocities)
+    world.count_as_rested()
     return world, ids
 
 
