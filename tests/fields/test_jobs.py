@@ -83,9 +83,11 @@ def test_drive_reports_the_active_zones_awake_fraction(run_inputs):
     grid = SamplingGrid.from_config(config)
     attrs = dict.fromkeys(ATTRS, 0) | {"scenario": "hill", "bins": list(grid.bins)}
     full = drive(bed, traj, config, grid, attrs, tmp / "full.zarr")
-    zoned_config = config | {
-        "solver": config["solver"] | {"active_zone": {"enabled": True, "margin": 0.0}}
-    }
+    # at the tiny run's 30 sweeps a step, a grain the blade jams against the rigid sleepers of
+    # its stiff lattice sinks past half a radius at some margins (0 and 0.06 m, and 0.06 and
+    # 0.1 m before its bed slept from the first step); at the workflow's 80, at none of 0-0.3 m
+    zone = {"enabled": True, "margin": 0.0}
+    zoned_config = config | {"solver": config["solver"] | {"iterations": 80, "active_zone": zone}}
     zoned = drive(bed, traj, zoned_config, grid, attrs, tmp / "zone.zarr")
     assert full.metrics(bed.count)["active_fraction"] == 1.0
     assert 0.0 < zoned.metrics(bed.count)["active_fraction"] < 1.0
