@@ -2,6 +2,7 @@
 
 import re
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from dozerlab import sweep as P
@@ -61,3 +62,28 @@ def test_a_scenario_of_transfer_points_only_has_its_panel_marked_unseen():
     assert fig.axes[1].collections[0].get_paths()  # the triangle of the transfer point
     row = sweep._row(summaries[-1])
     assert row[:2] == ["trench", "held out, unseen terrain"]
+
+
+def test_the_legend_lies_inside_the_figure_however_many_scenarios():
+    """On one scenario's narrow figure, three columns of role labels ran past both edges."""
+    for cfg in (
+        CFG,
+        load_config(
+            {
+                **SMALL_SWEEP,
+                "sweep": {
+                    **SMALL_SWEEP["sweep"],
+                    "transfer": [{"scenario": "trench", "speed": 1.0, "depth": 0.1}],
+                },
+            }
+        ),
+    ):
+        summaries = [PointSummary(p) for p in P.sweep_points(cfg)]
+        summaries[0].mean_force = 1500.0  # the rest not built: "not simulated yet" too
+        fig = sweep.sweep_map(summaries)
+        canvas = FigureCanvasAgg(fig)  # as the report's savefig draws it
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        box, frame = fig.legends[0].get_window_extent(renderer), fig.bbox
+        assert frame.x0 <= box.x0 and box.x1 <= frame.x1, (box, frame)
+        assert frame.y0 <= box.y0 and box.y1 <= frame.y1, (box, frame)

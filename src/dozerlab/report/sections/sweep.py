@@ -222,7 +222,9 @@ def sweep_map(summaries: list[PointSummary]) -> Any:
                     label="not simulated yet",
                 )
             )
-        fig.legend(
-            handles=handles, loc="outside lower center", ncols=min(len(handles), 3), frameon=False
-        )
+        # as many columns as the figure's width holds (a role's label and marker take about
+        # 2.6 in): three on one scenario's panel ran past both edges, "unseen terrain" cut off
+        width = float(fig.get_figwidth())
+        columns = max(1, min(len(handles), 3, int(width // 2.6)))
+        fig.legend(handles=handles, loc="outside lower center", ncols=columns, frameon=False)
     return fig
