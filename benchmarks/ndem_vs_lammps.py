@@ -29,7 +29,9 @@ measured by the same function at the same instants: every NDEM step, and LAMMPS 
 the bed's mean and largest surface height before and after (the top of the grains over a 5 cm
 grid), the grains displaced more than 1 mm and the median displacement; then LAMMPS's seconds
 per simulated second over NDEM's. ``--ndem-only`` runs NDEM alone: how far a
-solver setting lets the resting bed drift. Not a test: the seconds depend on the machine and its load.
+solver setting lets the resting bed drift. ``--jitter-seed`` starts both from the bed with
+every grain moved 1 µm, as NDEM's twins do: a few seeds give each engine's own spread of these
+figures (a largest overlap is one extreme of a chaotic run). Not a test: the seconds depend on the machine and its load.
 """
 
 from __future__ import annotations
@@ -298,6 +300,13 @@ def main(argv: list[str] | None = None) -> None:
         help="LAMMPS steps between overlap checks (0: those of one NDEM step)",
     )
     ap.add_argument("--restitution", type=float, default=0.3)
+    ap.add_argument(
+        "--jitter-seed",
+        type=int,
+        default=None,
+        help="start both engines from the bed with every grain moved 1 µm (Bed.jittered, as a "
+        "twin's): another draw of the same case, for the engines' own run-to-run spread",
+    )
     ap.add_argument("--venv", type=Path, default=Path.home() / ".cache/dozerlab/lammps-venv")
     ap.add_argument(
         "--ndem-only", action="store_true", help="run NDEM alone (how a solver setting drifts)"
@@ -323,13 +332,17 @@ def main(argv: list[str] | None = None) -> None:
         }
     )
     bed = Bed.load(args.bed)
+    if args.jitter_seed is not None:
+        bed = bed.jittered(1.0e-6, args.jitter_seed)
     box = (bed.length, bed.width)
     material = config["material"]
     python = "" if args.ndem_only else _lammps_python(args.venv)
     x0, r = bed.positions, bed.radii
     dt = float(config["solver"]["dt"])
     print(
-        f"bed {args.bed}: {bed.count} grains, {bed.length} x {bed.width} m; NDEM dt {dt} s, "
+        f"bed {args.bed}"
+        f"{'' if args.jitter_seed is None else f' jittered 1 µm (seed {args.jitter_seed})'}: "
+        f"{bed.count} grains, {bed.length} x {bed.width} m; NDEM dt {dt} s, "
         f"{config['solver']['iterations']} sweeps at most, tolerance "
         f"{config['solver']['tolerance']} m/s, relinearize {config['solver']['relinearize']}; LAMMPS dt {args.lammps_dt} s, restitution "
         f"{args.restitution}; one thread each. Overlaps over the smaller radius; heights mean / "
