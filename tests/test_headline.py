@@ -71,3 +71,21 @@ def test_metrics_and_summary_from_the_results(tmp_path):
         "height accuracy 85 %, force x rel. RMSE 20 %, least loop speed-up 40.0x"
     )
     assert lines[4].endswith("targets met: surface_skill; missed: loop_speedup (1 of 2)")
+
+
+def test_with_the_active_zone_the_summary_says_which_ndem_the_speed_ups_are_over(tmp_path):
+    overall = {"surface_accuracy": 0.72, "loop_speedup": 16.8, "job_speedup": 10.8}
+    points = [{"targets_met": {"loop_speedup": False}}]
+    write(
+        P.reduced_comparison_path(tmp_path, "ridge"),
+        {"overall": {"all": overall}, "points": points},
+    )
+    reduced = {"dynamics_models": ["ridge"]}
+    full = headline.summary_lines(tmp_path, load_config({"reduced": reduced}), 60.0)
+    assert full[1].endswith("least loop speed-up 16.8x, least job speed-up 10.8x")
+    cfg = load_config({"reduced": reduced, "solver": {"active_zone": {"enabled": True}}})
+    zone = headline.summary_lines(tmp_path, cfg, 60.0)
+    assert zone[1].endswith(
+        "least loop speed-up 16.8x, least job speed-up 10.8x, "
+        "speed-ups over NDEM with its active zone"
+    )

@@ -230,3 +230,28 @@ def test_with_twin_draws_the_runs_stand_against_ndems_expected_run(tmp_path):
     reduced_json(tmp_path / "one", "ridge")
     text = reduced.render(report_context(cfg, tmp_path / "one"))
     assert "expected run" not in text
+
+
+def test_the_speed_ups_name_the_ndem_they_are_over(tmp_path):
+    """With solver.active_zone the workflow's NDEM is the zone's, 2-3x the full solve: its
+    speed-ups must not read as the full solve's."""
+    reduced_json(tmp_path, "ridge")
+    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
+    text = reduced.render(report_context(cfg, tmp_path)).replace("&#x27;", "'")
+    assert "NDEM ran the full solve" in text and "active zone" not in text
+    assert reduced.verdict(report_context(cfg, tmp_path)).endswith(
+        "loop 62.0× as fast as NDEM; 2 of 3 targets met on every held-out point."
+    )
+    zone = load_config(
+        {
+            **SMALL_SWEEP,
+            "solver": {**SMALL_SWEEP.get("solver", {}), "active_zone": {"enabled": True}},
+            "reduced": {"dynamics_models": ["ridge"]},
+        }
+    )
+    reduced_json(tmp_path / "zone", "ridge")
+    text = reduced.render(report_context(zone, tmp_path / "zone")).replace("&#x27;", "'")
+    assert "NDEM ran with its active zone" in text and "not over the full solve" in text
+    assert "loop 62.0× as fast as NDEM with its active zone;" in reduced.verdict(
+        report_context(zone, tmp_path / "zone")
+    )
