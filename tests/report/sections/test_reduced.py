@@ -36,10 +36,11 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "–",
         "1 of 2",  # job_speedup is not judged without NDEM's job time
     ]
-    # on the scales NDEM reproduces: each figure, the twin's, the skill
+    # on the scales NDEM reproduces: each figure, the twin's, the skill (not the mean force's:
+    # one twin's error of it is a chance draw, as near 0 as it likes)
     second = re.findall(r"<table>(.*?)</table>", text, re.S)[1]
     headings = re.findall(r"<th(?: class=\"text\")?>(.*?)</th>", second)
-    assert headings[:11] == [
+    assert headings == [
         "point",
         "group",
         "smoothed-surface accuracy (%)",
@@ -50,7 +51,6 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "skill (×)",
         "mean force x rel. error (%)",
         "twin (%)",
-        "skill (×)",
     ]
     assert table_cells(text, 1)[2:] == [
         "72.0",
@@ -61,7 +61,6 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "0.80",
         "2.0",
         "1.0",
-        "2.00",
     ]
     # the grain scale and the fields, beside the twin's
     assert table_cells(text, 2)[2:] == [
