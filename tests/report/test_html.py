@@ -38,6 +38,23 @@ def test_cells_read_to_four_significant_digits(value, text):
     assert html.fmt(value) == text
 
 
+@pytest.mark.parametrize(
+    ("value", "bound", "decimals", "text"),
+    [
+        (0.89998, 0.9, 2, "0.89998"),  # "0.90" would read as met beside "missed"
+        (0.9004, 0.9, 2, "0.9004"),
+        (0.9, 0.9, 2, "0.90"),
+        (0.8123, 0.9, 2, "0.81"),
+        (39.96, 40.0, 1, "39.96"),
+        (0.9 - 1e-9, 0.9, 2, "0.900000"),  # no further than 6 decimals
+        (None, 0.9, 2, "–"),
+        (float("nan"), 0.9, 2, "–"),
+    ],
+)
+def test_a_figure_judged_against_a_bound_never_rounds_onto_it(value, bound, decimals, text):
+    assert html.against(value, bound, decimals) == text
+
+
 def test_bytes_and_figures_are_embedded_as_base64():
     from matplotlib.figure import Figure
 

@@ -158,6 +158,22 @@ def percent(fraction: float | None, digits: int = 1) -> str:
     return f"{100 * fraction:.{digits}f} %"
 
 
+def against(value: float | None, bound: float, decimals: int = 2) -> str:
+    """``value`` to ``decimals`` decimals or, where rounding would carry it onto or across
+    ``bound`` (a target it is judged against), to as many more as keep it on its own side, up to
+    6: a skill of 0.89998 against a target of 0.9 reads ``0.89998``, not ``0.90`` beside "missed".
+    None or NaN as an en dash."""
+    if value is None or not math.isfinite(value):
+        return "–"
+    side = (value > bound) - (value < bound)
+    for d in range(decimals, 7):
+        text = f"{value:.{d}f}"
+        rounded = float(text)
+        if (rounded > bound) - (rounded < bound) == side:
+            break
+    return text
+
+
 def fmt(value: Any) -> str:
     """A table cell's default text: floats to 4 significant digits, None or NaN as an en dash."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
