@@ -2,7 +2,9 @@
 backed by PostgreSQL (the services of ``.ci/cluster up``, which CI starts before pytest).
 
 One run of ``snakemake --workflow-profile slurm --configfile config/quick.yaml`` (the README's
-command) in a temporary directory; the checks read what it left: every job was a SLURM job, the
+command, the plugin polling SLURM every 5 s instead of 40: a private test cluster can afford it,
+and the sweep's chain of short jobs otherwise waits out a poll at every link) in a temporary
+directory; the checks read what it left: every job was a SLURM job, the
 report exists, and the server's PostgreSQL store holds one parent run with every child FINISHED.
 Skipped, with the reason, when the services are absent.
 """
@@ -92,6 +94,7 @@ def slurm_snakemake(workdir: Path, experiment: str, *overlay: str) -> subprocess
     env.update(ENV or {})
     cmd = [sys.executable, "-m", "snakemake", "--workflow-profile", "slurm",
            "-s", str(REPO / "Snakefile"), "--directory", str(workdir),
+           "--slurm-init-seconds-before-status-checks", "5",
            "--configfile", str(QUICK), str(extra)]  # fmt: skip
     return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
 
