@@ -79,6 +79,8 @@ def test_stores_round_trip_and_grid_mismatch_is_clear(store_files):
         concat([s, other], 1)
 
 
+# xarray's to_zarr consolidates, and zarr notes that consolidated metadata is outside the v3 spec
+@pytest.mark.filterwarnings("ignore:Consolidated metadata:UserWarning")
 def test_missing_array_is_named(store_files, tmp_path):
     import xarray as xr
 
