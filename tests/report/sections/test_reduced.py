@@ -124,12 +124,17 @@ def test_a_skill_or_speed_up_a_hair_off_its_target_is_shown_on_its_side(tmp_path
     reduced_json(tmp_path, "ridge")
     path = tmp_path / "reduced" / "ridge.json"
     doc = json.loads(path.read_text())
-    doc["points"][0] |= {"surface_accuracy_skill": 0.89998, "loop_speedup": 39.96}
+    doc["points"][0] |= {
+        "surface_accuracy_skill": 0.89998,
+        "loop_speedup": 39.96,
+        "max_overlap_loop": 0.10004,
+    }
     path.write_text(json.dumps(doc))
     cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
     text = reduced.render(report_context(cfg, tmp_path))
     assert table_cells(text, 1)[4] == "0.89998"  # not "0.90" against the target 0.9
-    assert table_cells(text, 3)[4] == "39.96"  # not "40.0" against the target 40
+    # not "10.0" against an overlap of at most 10 %, nor "40.0" against the target 40
+    assert table_cells(text, 3)[2:5] == ["10.004", "0", "39.96"]
 
 
 def test_the_verdict_says_its_figures_are_means_over_the_held_out_points(tmp_path):

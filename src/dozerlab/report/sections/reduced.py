@@ -76,10 +76,14 @@ POINT_COLUMNS = [html.Column("point", text=True), html.Column("group", text=True
 
 
 def _validity(t: dict[str, Any]) -> list[html.Column]:
-    """The per-point table's checks, the speed-ups to the precision that keeps each on its side
-    of its target."""
+    """The per-point table's checks, the overlap and the speed-ups to the precision that keeps
+    each on its side of its target."""
     return [
-        html.Column("largest overlap after projection", "% of radius", _pct),
+        html.Column(
+            "largest overlap after projection",
+            "% of radius",
+            lambda v: html.against(None if v is None else 100 * v, 100 * t["max_overlap"], 1),
+        ),
         html.Column("grains that left", ""),
         html.Column(
             "loop speed-up", "×", partial(html.against, bound=t["loop_speedup"], decimals=1)
