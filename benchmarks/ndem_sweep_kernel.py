@@ -12,7 +12,8 @@ later runs) and times ``solve`` on fresh copies of it, ``--repeats`` times each,
 one process: the baseline kernel (``solver.py`` as committed at the git ref ``--baseline``,
 loaded beside the working tree's) and the working tree's. Prints contact-iterations/s (best and
 median of the repeats) and the largest difference of the multipliers and velocities against the
-baseline.
+baseline. ``--spin`` adds the working tree's kernel with the spinning row on (its difference
+from the baseline is then the row's effect, not round-off).
 Not a test: the seconds depend on the machine and its load.
 """
 
@@ -32,6 +33,9 @@ import numpy as np
 
 ARRAYS = ("ci", "cj", "cd", "lam", "v", "w", "invm", "invI", "start")
 SCALARS = ("n_slabs", "iterations", "warm", "method", "tolerance", "omega")
+# the spinning resistance μ_s, passed only when nonzero: a baseline from before it had no such
+# argument, and with 0 both kernels solve the same rows
+SPIN = "spin"
 
 
 def snapshot(bed: str, trajectory: str, config_path: str, steps: int, solve) -> dict:
@@ -55,8 +59,10 @@ def snapshot(bed: str, trajectory: str, config_path: str, steps: int, solve) -> 
     def capture(*args):
         if world.state.step_count == steps:
             captured.update({k: np.copy(a) for k, a in zip(ARRAYS, args[:9], strict=True)})
-            captured.update(dict(zip(SCALARS, args[9:], strict=True)))
-        return solve(*args)
+            captured.update(dict(zip(SCALARS, args[9:15], strict=True)))
+            captured[SPIN] = float(args[15]) if len(args) > 15 else 0.0
+        spin = args[15:]  # (μ_s,) from a stepper that passes it
+        return solve(*args[:15], *(spin if spin and spin[0] else ()))
 
     working = solver.solve
     solver.solve = capture  # the stepper calls solver.solve through the module
@@ -95,7 +101,7 @@ def run(solve, snap: dict) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     args = [snap[k] for k in ARRAYS]
     args[3:6] = lam, v, w
     t0 = time.perf_counter()
-    solve(*args, *(snap[k] for k in SCALARS))
+    solve(*args, *(snap[k] for k in SCALARS), *([snap[SPIN]] if snap[SPIN] else []))
     return time.perf_counter() - t0, lam, v, w
 
 
@@ -108,6 +114,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--baseline", default="main", help="git ref of the baseline solver.py")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--snapshot", help=".npz that keeps the snapshot (read when it exists)")
+    ap.add_argument(
+        "--spin",
+        type=float,
+        default=0.0,
+        help="also time the working tree's kernel with this spinning resistance μ_s",
+    )
     args = ap.parse_args(argv)
 
     import numba
@@ -118,6 +130,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.snapshot and Path(args.snapshot).exists():
         with np.load(args.snapshot, allow_pickle=False) as f:
             snap = {k: f[k] for k in ARRAYS} | {k: f[k].item() for k in (*SCALARS, "driven")}
+            snap[SPIN] = f[SPIN].item() if SPIN in f else 0.0
     else:
         snap = snapshot(args.bed, args.trajectory, args.config, args.steps, baseline)
         if args.snapshot:
@@ -127,17 +140,20 @@ def main(argv: list[str] | None = None) -> None:
         f"snapshot after {snap['driven']} steps: {nc} contacts, {n} spheres, "
         f"{snap['n_slabs']} slabs,"
         f" {snap['iterations']} sweeps, omega {snap['omega']}, method {snap['method']},"
+        f" spinning resistance {snap[SPIN]},"
         f" {numba.get_num_threads()} numba thread(s)"
     )
-    kernels = {f"baseline ({args.baseline})": baseline}
-    kernels["working tree"] = solver.solve
-    for solve in kernels.values():
-        run(solve, snap)  # compile or load from the cache
+    kernels = {f"baseline ({args.baseline})": (baseline, snap)}
+    kernels["working tree"] = (solver.solve, snap)
+    if args.spin:
+        kernels[f"working tree, μ_s {args.spin}"] = (solver.solve, snap | {SPIN: args.spin})
+    for solve, system in kernels.values():
+        run(solve, system)  # compile or load from the cache
     times: dict[str, list[float]] = {name: [] for name in kernels}
     out = {}
     for _ in range(args.repeats):  # interleaved, so drifting load hits both alike
-        for name, solve in kernels.items():
-            seconds, *out[name] = run(solve, snap)
+        for name, (solve, system) in kernels.items():
+            seconds, *out[name] = run(solve, system)
             times[name].append(seconds)
     ref = out[next(iter(kernels))]
     base = statistics.median(times[next(iter(kernels))])

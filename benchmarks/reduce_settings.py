@@ -43,7 +43,7 @@ from dozerlab.config import load_config
 from dozerlab.runtime import freeze_heap, set_threads
 
 
-def _variant(text: str, base: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def variant(text: str, base: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     """``NAME:KEY=VALUE,...`` → (name, ``base`` with those fields set, validated)."""
     name, _, items = text.partition(":")
     cfg = copy.deepcopy(base)
@@ -77,7 +77,7 @@ def main() -> None:
     from dozerlab.scenarios.bed import Bed
 
     base = load_config(args.config)
-    variants = [_variant(text, base) for text in args.variants]
+    variants = [variant(text, base) for text in args.variants]
     res = args.results
     training = args.points == "training"
     points = [p for p in P.sweep_points(base) if (p.role == "train") == training]

@@ -69,6 +69,48 @@ def test_sphere_rolls_down_incline_with_the_analytic_acceleration(rolling):
     assert omega * R == pytest.approx(v2, rel=0.02)  # rolling without slipping
 
 
+@pytest.mark.parametrize("spinning", [0.0, 0.1, 0.3])
+def test_spin_about_the_normal_is_free_unless_resisted_and_then_stops_at_the_bounded_rate(spinning):
+    """A sphere resting on the ground, set spinning about the vertical: no rolling row touches
+    that spin, so without spinning resistance it keeps it; with μ_s the torque is R·μ_s·m·g
+    (R* = R against a body), so ω falls at 2.5·μ_s·g / R (I = 0.4 m R²) and stops at zero."""
+    w = World(spinning_resistance=spinning)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R]], radius=R)
+    w.step(20)  # sink to the Hertz overlap
+    omega0 = 5.0
+    w.state.w[:, 2] = omega0
+    spins = []
+    for _ in range(40):
+        w.step()
+        spins.append(w.angular_velocities[0, 2])
+    rate = 2.5 * spinning * G / R
+    lever = w.positions[0, 2]  # the contact's lever arm: R less the overlap
+    if spinning == 0.0:
+        np.testing.assert_array_equal(spins, omega0)
+    else:
+        assert omega0 - spins[0] == pytest.approx(rate * lever / R * w.dt, rel=1e-3)
+        assert abs(spins[-1]) < 1e-12 and min(spins) > -1e-12  # stopped, never turned back
+    np.testing.assert_allclose(w.angular_velocities[0, :2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(w.velocities[0], 0.0, atol=1e-9)
+
+
+def test_spin_between_two_grains_is_resisted_with_their_reduced_radius():
+    """The top sphere of a two-sphere column spins about the vertical: the pair's torque limit
+    is R*·μ_s·m·g with R* = R/2, half the ground's, so it slows at 1.25·μ_s·g / R, and the
+    sphere below, held by the ground's larger limit, does not turn."""
+    spinning = 0.2
+    w = World(spinning_resistance=spinning)
+    w.add_plane()
+    w.add_spheres([[0.0, 0.0, R], [0.0, 0.0, 3 * R]], radius=R)
+    w.step(20)
+    w.state.w[w.state.id == 1, 2] = 5.0
+    w.step()
+    bottom, top = w.angular_velocities[:, 2]
+    assert (5.0 - top) / w.dt == pytest.approx(1.25 * spinning * G / R, rel=0.01)
+    assert abs(bottom) < 1e-9
+
+
 def test_sliding_box_like_sphere_decelerates_by_coulomb_friction():
     """A spinning-free sphere thrown along flat ground with μ_r large: pure sliding first."""
     w = World(iterations=100)

@@ -40,6 +40,23 @@ def test_vectors_are_projected_onto_the_new_tangent_plane():
     np.testing.assert_allclose(got[0], _lam(1.0, (0.0, 0.2, 0.0), (0.0, 0.0, 0.0)))
 
 
+def test_the_spinning_rows_impulse_is_kept_only_with_spinning_resistance():
+    warm = WarmStart()
+    ids = np.array([0, 1], dtype=np.int64)
+    # sphere 0 on sphere 1 along z, the rolling impulse with a part along the normal (spin)
+    lam = np.array([_lam(1.0, (0.1, 0.0, 0.0), (0.0, 0.3, 0.2))])
+    warm.store(ids, np.array([0]), np.array([1]), lam)
+    up = np.array([[0.0, 0.0, 1.0]])
+    free = warm.lookup(ids, np.array([0]), np.array([1]), up)
+    np.testing.assert_allclose(free[0], _lam(1.0, (0.1, 0.0, 0.0), (0.0, 0.3, 0.0)))
+    kept = warm.lookup(ids, np.array([0]), np.array([1]), up, spin=True)
+    np.testing.assert_allclose(kept[0], lam[0])
+    # the slots swapped: the impulse flips with the normal, so the spin about it is the same
+    swapped = warm.lookup(ids, np.array([1]), np.array([0]), -up, spin=True)
+    np.testing.assert_allclose(swapped[0], _lam(1.0, (-0.1, 0.0, 0.0), (0.0, -0.3, -0.2)))
+    assert swapped[0, 4:] @ -up[0] == kept[0, 4:] @ up[0]
+
+
 def test_loaded_contacts_among_sleeping_spheres_are_carried_until_one_wakes():
     warm = WarmStart()
     ids = np.array([0, 1, 2, 3], dtype=np.int64)

@@ -122,7 +122,7 @@ def test_from_config_reads_solver_and_material():
     cfg = load_config(
         {
             "solver": {"dt": 0.005, "iterations": 30, "damping_steps": 2.0},
-            "material": {"youngs_modulus": 0.0, "friction": 0.7},
+            "material": {"youngs_modulus": 0.0, "friction": 0.7, "spinning_resistance": 0.2},
         }
     )
     w = World.from_config(cfg)
@@ -133,6 +133,8 @@ def test_from_config_reads_solver_and_material():
         0.0,
         0.7,
     )
+    assert w.spinning_resistance == 0.2
+    assert World.from_config(load_config(None)).spinning_resistance == 0.0  # off by default
     assert w.max_overlap == cfg["solver"]["max_overlap"]
     assert w.density == cfg["material"]["density"]
 
@@ -146,6 +148,7 @@ def test_from_config_reads_solver_and_material():
         ({"damping_steps": 0.0}, "damping_steps"),
         ({"poisson_ratio": 0.5}, "poisson_ratio"),
         ({"youngs_modulus": -1.0}, "youngs_modulus"),
+        ({"spinning_resistance": -0.1}, "spinning_resistance"),
         ({"gravity": (0, 0)}, "gravity"),
     ],
 )

@@ -45,6 +45,7 @@ MATERIAL_KEYS = (
     "poisson_ratio",
     "friction",
     "rolling_resistance",
+    "spinning_resistance",
     "wall_friction",
 )
 
@@ -106,6 +107,7 @@ class Parameters:
     density: float = field(default_factory=_schema("density"))
     friction: float = field(default_factory=_schema("friction"))
     rolling_resistance: float = field(default_factory=_schema("rolling_resistance"))
+    spinning_resistance: float = field(default_factory=_schema("spinning_resistance"))
     wall_friction: float = field(default_factory=_schema("wall_friction"))
     contact_margin: float = 0.02
     slabs: int = 16
@@ -152,7 +154,13 @@ class Parameters:
         put("poisson_ratio", float(pr))
         put("max_overlap", float(self.max_overlap))
         put("density", float(self.density))
-        for name in ("youngs_modulus", "friction", "rolling_resistance", "wall_friction"):
+        for name in (
+            "youngs_modulus",
+            "friction",
+            "rolling_resistance",
+            "spinning_resistance",
+            "wall_friction",
+        ):
             put(name, nonnegative(name, getattr(self, name)))
         put("contact_margin", nonnegative("contact_margin", self.contact_margin))
         put("slabs", int(self.slabs))

@@ -4,6 +4,9 @@ Multipliers ``lam`` (Nc, 7) are impulses (N·s): the normal one, the friction im
 vector in the tangent plane (3) and the rolling-resistance angular impulse (3). Per contact the
 normal row is solved first, then friction projected onto the disc μ·λ_n, then rolling
 resistance projected onto the disc R*·μ_r·λ_n; each update is applied to the velocities at once.
+With spinning resistance (``spin`` = μ_s > 0) the angular impulse also has a component along the
+normal, the third rolling row, which resists the relative spin about the normal and is clipped to
+±R*·μ_s·λ_n; without it that component is zero and spin about the normal is free.
 
 Parallel sweep: group s < S holds the contacts inside slab s, group S + s those joining slabs
 s and s + 1. A task sweeps slab s and then its boundary with s + 1, so it touches only those two
@@ -37,17 +40,19 @@ def _clip(t0, t1, t2, lim):
 
 
 @njit(cache=True, fastmath=True, error_model="numpy", inline="always")
-def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
-    """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1);
-    returns the squared normal-row residual and the squared velocity change the update made at
-    the contact point over ω (m²/s²: translation, friction turn and rolling, as surface speeds).
+def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega, spin):
+    """One PGS update of contact k, its steps scaled by ``omega`` (over-relaxation when > 1),
+    with the spinning row when ``spin`` (μ_s) > 0; returns the squared normal-row residual and
+    the squared velocity change the update made at the contact point over ω (m²/s²: translation,
+    friction turn and rolling, as surface speeds).
 
     The rows are solved in order (normal, friction, rolling), each seeing the ones before, but
     written so that little waits on the row before: the normal update is along n, so the
     friction row's tangential slip is taken from the velocities before it, and the friction
     update turns w by a tangential n × d, so the rolling row adds that to the tangential
     relative angular velocity taken before it. The multipliers stay in the tangent plane (the
-    warm start projects them onto it), so no row projects them again. Same arithmetic up to
+    warm start projects them onto it; but for the rolling one's spinning component), so no row
+    projects them again. Same arithmetic up to
     round-off as applying each update to the velocities in turn; the sweep's time is the
     latency of this chain (BENCHMARKS.md "NDEM sweep kernel").
     """
@@ -124,15 +129,28 @@ def _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega):
     a0 = wi0 - wj0
     a1 = wi1 - wj1
     a2 = wi2 - wj2
-    an = a0 * n0 + a1 * n1 + a2 * n2
     q = qj - qi
     kr = omega * c[KR]
-    r0, r1, r2 = _clip(
-        l4 - kr * (a0 - an * n0 + q * x0),
-        l5 - kr * (a1 - an * n1 + q * x1),
-        l6 - kr * (a2 - an * n2 + q * x2),
-        c[MUR] * ln_new,
-    )
+    if spin > 0.0:
+        # and the spinning row: the whole relative angular velocity (the spheres' inverse
+        # inertias are isotropic, so the three rows share KR), the tangential part clipped onto
+        # the rolling disc, the normal part onto ±R*·μ_s·λ_n (R* from the lever arms)
+        b0 = l4 - kr * (a0 + q * x0)
+        b1 = l5 - kr * (a1 + q * x1)
+        b2 = l6 - kr * (a2 + q * x2)
+        bn = b0 * n0 + b1 * n1 + b2 * n2
+        r0, r1, r2 = _clip(b0 - bn * n0, b1 - bn * n1, b2 - bn * n2, c[MUR] * ln_new)
+        lim = spin * ln_new * (ri * rj / (ri + rj) if rj > 0.0 else ri)
+        bn = min(max(bn, -lim), lim)
+        r0, r1, r2 = r0 + bn * n0, r1 + bn * n1, r2 + bn * n2
+    else:
+        an = a0 * n0 + a1 * n1 + a2 * n2
+        r0, r1, r2 = _clip(
+            l4 - kr * (a0 - an * n0 + q * x0),
+            l5 - kr * (a1 - an * n1 + q * x1),
+            l6 - kr * (a2 - an * n2 + q * x2),
+            c[MUR] * ln_new,
+        )
     e0, e1, e2 = r0 - l4, r1 - l5, r2 - l6
     lam[k, 4], lam[k, 5], lam[k, 6] = r0, r1, r2
 
@@ -180,13 +198,30 @@ def _apply(k, ci, cj, cd, lam, v, w, invm, invI):
 
 @njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def solve(
-    ci, cj, cd, lam, v, w, invm, invI, start, n_slabs, iterations, warm, method, tolerance, omega
+    ci,
+    cj,
+    cd,
+    lam,
+    v,
+    w,
+    invm,
+    invI,
+    start,
+    n_slabs,
+    iterations,
+    warm,
+    method,
+    tolerance,
+    omega,
+    spin=0.0,
 ):
     """Sweep the contacts until a sweep changed the velocities at the contact points by less
     than ``tolerance`` (m/s, RMS over the contacts of every row's change) or ``iterations``
     sweeps ran.
 
-    Each update is scaled by ``omega`` (projected SOR when > 1). ``method`` is an index into
+    Each update is scaled by ``omega`` (projected SOR when > 1). ``spin`` is the spinning
+    resistance μ_s (0: spin about the normal is free, the rolling impulse stays tangential; the
+    warm start must then have dropped its normal component). ``method`` is an index into
     :data:`dozerlab.ndem.params.METHODS`: 0 PGS; 1 NNCG
     (Silcowitz, Niebe & Erleben 2010), which after each sweep adds β·p to the multipliers, p
     the previous search direction and β = |Δλ_k|² / |Δλ_{k-1}|² (Fletcher–Reeves on the sweep's
@@ -238,7 +273,7 @@ def solve(
                         if nncg:
                             for a in range(7):
                                 prev[k, a] = lam[k, a]
-                        rk, uk = _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega)
+                        rk, uk = _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega, spin)
                         r += rk
                         du += uk
                         if nncg:

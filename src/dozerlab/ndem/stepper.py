@@ -240,7 +240,9 @@ def _solve_awake(
     else:
         state.v += h * p.gravity
     if p.warm_start:
-        lam = state.warm.lookup(state.id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3])
+        lam = state.warm.lookup(
+            state.id, ci, cj, cd[:, contacts.N0 : contacts.N0 + 3], p.spinning_resistance > 0.0
+        )
     else:
         lam = np.zeros((ci.shape[0], 7))
     with _serial_if(ci.shape[0] < PARALLEL_MIN_CONTACTS):
@@ -260,6 +262,7 @@ def _solve_awake(
             METHODS.index(p.method),
             p.tolerance,
             p.relaxation,
+            p.spinning_resistance,
         )
         swept = int(gstart[2 * n_slabs])
         rounds = p.relinearize if estar > 0.0 else 0
@@ -273,6 +276,7 @@ def _solve_awake(
             residual, more = solver.solve(
                 *(ci, cj, cd, lam, state.v, state.w, invm, invI, gstart, n_slabs, p.iterations),
                 *(False, METHODS.index(p.method), p.tolerance, p.relaxation),
+                p.spinning_resistance,
             )
             sweeps += more
             ran += 1

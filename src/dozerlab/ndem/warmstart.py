@@ -26,7 +26,7 @@ def _name(ids, ci, cj, k):
 
 
 @njit(parallel=True, cache=True)
-def _lookup(ids, ci, cj, normals, start, hi_store, lam_store):
+def _lookup(ids, ci, cj, normals, start, hi_store, lam_store, spin):
     nc = ci.shape[0]
     lam = np.zeros((nc, 7))
     n_ids = start.shape[0] - 1
@@ -43,6 +43,10 @@ def _lookup(ids, ci, cj, normals, start, hi_store, lam_store):
                 for a in range(3):
                     lam[k, off + a] = sign * lam_store[s, off + a]
                     dot += lam[k, off + a] * normals[k, a]
+                if off == 4 and spin:
+                    # the spinning row's impulse along the normal: flipped with the normal
+                    # when the pair swapped, so the rolling vector's normal part is kept
+                    continue
                 for a in range(3):
                     lam[k, off + a] -= dot * normals[k, a]
             break
@@ -118,14 +122,21 @@ class WarmStart:
         self.lam = np.zeros((0, 7))
 
     def lookup(
-        self, ids: np.ndarray, ci: np.ndarray, cj: np.ndarray, normals: np.ndarray
+        self,
+        ids: np.ndarray,
+        ci: np.ndarray,
+        cj: np.ndarray,
+        normals: np.ndarray,
+        spin: bool = False,
     ) -> np.ndarray:
         """Initial multipliers (Nc, 7) for this step's contacts (zero for new contacts).
 
-        The friction and rolling vectors are projected onto the new tangent planes.
+        The friction and rolling vectors are projected onto the new tangent planes; with
+        ``spin`` (spinning resistance on) the rolling vector keeps its part along the normal,
+        the spinning row's impulse.
         """
         # A strided view (the contact table's normal columns) is read in place, not copied.
-        return _lookup(ids, ci, cj, normals, self.start, self.hi, self.lam)
+        return _lookup(ids, ci, cj, normals, self.start, self.hi, self.lam, spin)
 
     def held(self, asleep: np.ndarray) -> np.ndarray:
         """Per sphere id (N,), the normal impulses (N·s) summed over its stored contacts that a

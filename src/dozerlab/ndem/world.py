@@ -79,6 +79,7 @@ class World:
     density = _parameter("density")
     friction = _parameter("friction")
     rolling_resistance = _parameter("rolling_resistance")
+    spinning_resistance = _parameter("spinning_resistance")
     wall_friction = _parameter("wall_friction")
     contact_margin = _parameter("contact_margin")
     slabs = _parameter("slabs")
