@@ -43,11 +43,23 @@ from dozerlab.config import load_config
 from dozerlab.runtime import freeze_heap, set_threads
 
 
+def _top_level(items: str) -> list[str]:
+    """``items`` split at the commas outside brackets and braces."""
+    parts, depth, start = [], 0, 0
+    for i, ch in enumerate(items):
+        depth += (ch in "[{") - (ch in "]}")
+        if ch == "," and depth == 0:
+            parts.append(items[start:i])
+            start = i + 1
+    return [*parts, items[start:]]
+
+
 def variant(text: str, base: dict[str, Any]) -> tuple[str, dict[str, Any]]:
-    """``NAME:KEY=VALUE,...`` → (name, ``base`` with those fields set, validated)."""
+    """``NAME:KEY=VALUE,...`` → (name, ``base`` with those fields set, validated). A comma
+    inside a YAML list or mapping belongs to the value: ``dynamics.ridge_z_bands=[1,4]``."""
     name, _, items = text.partition(":")
     cfg = copy.deepcopy(base)
-    for item in filter(None, items.split(",")):
+    for item in filter(None, _top_level(items)):
         key, sep, value = item.partition("=")
         if not sep:
             raise SystemExit(f"variant {text!r}: {item!r} is not KEY=VALUE")

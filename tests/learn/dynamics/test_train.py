@@ -38,8 +38,9 @@ def moving():
     return [translating(0), translating(1)]
 
 
-def test_the_ridge_tries_every_alpha_keeps_the_best_and_beats_persistence(moving):
+def test_the_ridge_tries_every_alpha_keeps_the_best_and_beats_persistence(moving, capsys):
     ridge = train_dynamics("ridge", moving, CFG, progress=False)
+    assert "ridge" not in capsys.readouterr().err  # no bar where the caller asked for none
     persistence = train_dynamics("persistence", moving, CFG, progress=False)
     assert len(ridge.train_loss) == len(ridge.val_loss) == len(CFG["dynamics"]["ridge_alphas"])
     assert ridge.best_epoch == int(np.argmin(ridge.val_loss))

@@ -124,13 +124,15 @@ def fit_ridge(
     rho_scale: float,
     calls: int,
     on_alpha: EpochCallback | None = None,
+    progress: bool = True,
 ) -> tuple[list[float], list[float], int]:
     """Closed-form ridge of the normalised residuals on every ``every``-th training window, one
     fit per layer of bins along x and box of its bands: density unweighted, velocity weighted
     by true density, one solve per predicted row. Each of ``alphas`` is solved from the same normal equations and
     the one whose ``calls``-call rollouts on ``val`` have the lowest loss is kept: a linear map
     fed its own output can amplify, which one row ahead does not show. Returns the one-step
-    training and the rollout validation loss of each alpha, and the index of the kept one."""
+    training and the rollout validation loss of each alpha, and the index of the kept one.
+    ``progress``: a tqdm bar over the batches of windows on stderr."""
     net, m, layers = model.net, model.horizon, model.grid[0]
     assert isinstance(net, RidgeStencil)
     d = net.weight.shape[2]
@@ -138,7 +140,8 @@ def fit_ridge(
     eq_rho = [NormalEquations(d, m) for _ in parts]
     eq_v = [[NormalEquations(d, 3) for _ in range(m)] for _ in parts]
     pick = np.arange(0, len(data), max(1, every))
-    for sel in tqdm(np.array_split(pick, max(1, len(pick) // 16)), desc="ridge", unit="batch"):
+    batches = np.array_split(pick, max(1, len(pick) // 16))
+    for sel in tqdm(batches, desc="ridge", unit="batch", disable=not progress):
         v, rho, vb, v_true, rho_true = data.get(sel, m)
         base = model.base(v, rho, vb)
         x, c = model.inputs(v, rho, vb, base)
@@ -251,6 +254,7 @@ def train_dynamics(
             rho_scale,
             val_calls,
             on_epoch,
+            progress,
         )
     elif kind == "unet":
         _fit_unet(model, train, val, dyn, seed, rho_scale, result, on_epoch, progress)
