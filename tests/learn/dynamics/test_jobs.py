@@ -70,10 +70,10 @@ def test_cli_trains_validates_and_logs_to_mlflow(tracking, store_files, capsys):
     inputs = {
         "velocity": s.velocity[None, :2],
         "density": s.density[None, :2],
-        "blade_velocity": s.blade_velocity[None, :4],  # history 2, two rows predicted
+        "blade_velocity": s.blade_velocity[None, :5],  # history 2, three rows predicted
     }
     model, _ = pyfunc.load(out)
-    assert model.horizon == 2  # dynamics.ridge_horizon
+    assert model.horizon == 3  # dynamics.ridge_horizon
     np.testing.assert_allclose(
         logged.predict(inputs)["density"],
         pyfunc.predict_arrays(model, inputs)["density"],

@@ -45,7 +45,7 @@ def test_the_ridge_tries_every_alpha_keeps_the_best_and_beats_persistence(moving
     assert len(ridge.train_loss) == len(ridge.val_loss) == len(CFG["dynamics"]["ridge_alphas"])
     assert ridge.best_epoch == int(np.argmin(ridge.val_loss))
     assert min(ridge.val_loss) < 0.1 * persistence.val_loss[0]
-    # two rows a call: each store gives one training window fewer than persistence's one row
-    assert (ridge.model.horizon, persistence.model.horizon) == (2, 1)
-    assert ridge.samples["train"] == persistence.samples["train"] - len(moving)
+    # three rows a call: each store gives two training windows fewer than persistence's one row
+    assert (ridge.model.horizon, persistence.model.horizon) == (3, 1)
+    assert ridge.samples["train"] == persistence.samples["train"] - 2 * len(moving)
     assert ridge.samples["validation"] == persistence.samples["validation"]
