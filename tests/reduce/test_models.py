@@ -139,7 +139,14 @@ def test_the_loops_direct_field_model_calls_match_the_pyfunc(kind, tmp_path):
         {
             "mlflow": {"enabled": False},
             "learn": {"validation_block": 5},
-            "dynamics": {"epochs": 1, "samples_per_epoch": 8, "history": 2, "horizon": 2},
+            # both kinds predict the 2 rows the inputs below hold
+            "dynamics": {
+                "epochs": 1,
+                "samples_per_epoch": 8,
+                "history": 2,
+                "horizon": 2,
+                "ridge_horizon": 2,
+            },
         }
     )
     stores = [translating(i, rows=30) for i in range(2)]

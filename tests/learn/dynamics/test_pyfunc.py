@@ -21,6 +21,7 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
                 "samples_per_epoch": 8,
                 "history": 3,
                 "horizon": 2,
+                "ridge_horizon": 2,  # every kind predicts the rows the inputs below hold
                 "ridge_y_bands": [2],  # the helpers' grid: 5 columns, 4 rows
                 "ridge_z_bands": [1],
             },
