@@ -139,13 +139,14 @@ def test_the_loops_direct_field_model_calls_match_the_pyfunc(kind, tmp_path):
         {
             "mlflow": {"enabled": False},
             "learn": {"validation_block": 5},
-            # both kinds predict the 2 rows the inputs below hold
+            # both kinds predict the 2 rows the inputs below hold; the stores have 4 rows of bins
             "dynamics": {
                 "epochs": 1,
                 "samples_per_epoch": 8,
                 "history": 2,
                 "horizon": 2,
                 "ridge_horizon": 2,
+                "ridge_z_bands": [1, 3],
             },
         }
     )
