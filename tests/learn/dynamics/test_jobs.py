@@ -11,7 +11,14 @@ from dozerlab.learn.dynamics import pyfunc
 CONFIG = json.dumps(
     {
         "learn": {"validation_block": 5},
-        "dynamics": {"epochs": 1, "samples_per_epoch": 8, "rollout_steps": 30, "rollout_starts": 2},
+        # the stores have 4 rows of bins: the default height bands cut the default volume's 8
+        "dynamics": {
+            "epochs": 1,
+            "samples_per_epoch": 8,
+            "rollout_steps": 30,
+            "rollout_starts": 2,
+            "ridge_z_bands": [1, 3],
+        },
     }
 )
 
