@@ -170,6 +170,51 @@ def test_two_rows_a_step_move_the_grains_once_and_fill_the_row_between_from_eith
     )
 
 
+class _Looser(_Uniform):
+    """The uniform velocity, and a density a fifth below the grains' (a bed that dilates)."""
+
+    def predict(self, velocity, density, blade_velocity, row):
+        v, rho = super().predict(velocity, density, blade_velocity, row)
+        return v, 0.8 * rho
+
+
+def _steered(config, models, gain):
+    return {
+        **config,
+        "reduced": {**config["reduced"], "density_models": models, "density_gain": gain},
+    }
+
+
+def test_a_model_in_density_models_steers_the_grains_towards_its_density(ndem_run):
+    tmp, config = ndem_run
+    finals = {}
+    for name, models, gain in [
+        ("unlisted", ["replay"], 0.5),
+        ("off", ["looser"], 0.0),
+        ("steered", ["looser"], 0.5),
+    ]:
+        model = _Looser(SamplingGrid.from_config(config).bins)
+        model.name = "looser"
+        reduce_run(
+            tmp / "bed.npz",
+            tmp / "speed~0.5_depth~0.06.csv",
+            _steered(config, models, gain),
+            model,
+            ForcePredictor(tmp / "linear"),
+            tmp / f"{name}.zarr",
+            tmp / f"{name}.npz",
+        )
+        finals[name] = Bed.load(tmp / f"{name}.npz").positions
+    # unlisted or at gain 0 the loop is the one without steering, to the bit
+    np.testing.assert_array_equal(finals["unlisted"], finals["off"])
+    # steered towards a looser bed, the grains the field carried stand taller
+    start = Bed.load(tmp / "bed.npz").positions
+    moved = np.linalg.norm(finals["off"] - start, axis=1) > 0.01
+    assert moved.sum() > 20
+    rise = finals["steered"][moved, 2] - finals["off"][moved, 2]
+    assert rise.mean() > 0.003
+
+
 def test_a_blade_clear_of_the_bed_leaves_the_warm_up_rows_the_bed_as_it_lies(ndem_run):
     tmp, config = ndem_run  # the planned blade starts 10 cm before the bed
     _, stored = _uniform_run(tmp, config, "clear")

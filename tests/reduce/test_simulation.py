@@ -9,7 +9,7 @@ from dozerlab.fields.sampling import SamplingGrid
 from dozerlab.ndem.bodies import Bodies as NdemBodies
 from dozerlab.reduce.compare import largest_overlap
 from dozerlab.reduce.projection import Bodies
-from dozerlab.reduce.simulation import ReducedSettings, ReducedState
+from dozerlab.reduce.simulation import ReducedSettings, ReducedState, density_correction
 
 
 def _state(positions, velocities, grid, settings=None) -> ReducedState:
@@ -54,6 +54,43 @@ def test_grains_in_the_volume_move_with_the_field_and_the_others_rest_or_fly():
     np.testing.assert_array_equal(state.x[3], resting)  # at rest outside: frozen
     fly_v = np.array([0.5, 0.0, 1.0 - 9.81 * h])
     np.testing.assert_allclose(state.x[4], np.array(flying) + h * fly_v, atol=1e-12)
+
+
+def test_the_density_correction_moves_grains_down_the_excess_by_each_axis_bin():
+    size, h, gain = (0.1, 0.2, 0.05), 0.02, 0.5
+    field = np.full((5, 5, 5), 1000.0)
+    assert not density_correction(field, field, size, h, gain, 2600.0).any()
+    loop = field.copy()
+    loop[2, 2, 2] += 260.0  # packed denser than the field by a tenth of the solid density
+    v = density_correction(loop, field, size, h, gain, 2600.0)
+    for a, length in enumerate(size):
+        below, above = [2, 2, 2], [2, 2, 2]
+        below[a], above[a] = 1, 3
+        # out of the bin on either side: gain · L² / h times the central difference 0.1 / 2L
+        out = gain * length * length / h * 0.1 / (2 * length)
+        assert v[tuple(below)][a] == pytest.approx(-out)
+        assert v[tuple(above)][a] == pytest.approx(out)
+        assert not np.delete(v[tuple(below)], a).any()
+    assert not v[2, 2, 2].any()
+    np.testing.assert_allclose(density_correction(loop, field, size, h / 2, gain, 2600.0), 2 * v)
+    # a bin the grains leave emptier than the field draws them in
+    np.testing.assert_allclose(density_correction(field, loop, size, h, gain, 2600.0), -v)
+
+
+def test_the_correction_moves_only_the_grains_the_field_carries():
+    grid = SamplingGrid((4, 4, 4), (0.1, 0.1, 0.1), (0.0, -0.2, 0.0))
+    tip = np.array([0.0, 0.0, 0.5])
+    inside, resting = [0.2, 0.05, 0.7], [1.0, 0.5, 0.3]
+    x = np.array([inside, resting])
+    field = np.zeros((*grid.bins, 3))
+    field[..., 0] = 0.3
+    steer = np.zeros_like(field)
+    steer[..., 2] = 0.2
+    state = _state(x.copy(), np.zeros_like(x), grid)
+    state.step(field, np.full(grid.bins, 1500.0), tip, 0.01, correction=steer)
+    np.testing.assert_allclose(state.x[0], np.array(inside) + 0.01 * np.array([0.3, 0.0, 0.2]))
+    np.testing.assert_allclose(state.v[0], [0.3, 0.0, 0.2])
+    np.testing.assert_array_equal(state.x[1], resting)
 
 
 def test_a_grain_at_rest_where_the_field_is_slower_than_the_rest_speed_stays_at_rest():
@@ -223,6 +260,8 @@ def test_the_loop_reads_only_the_reduced_fields_the_workflow_passes_its_jobs():
         "rest_speed": 0.2,
         "support_angle": 30,
         "divergence_overlap": 0.7,
+        "density_models": ["ridge"],
+        "density_gain": 0.2,
         "moved_radii": 3.0,
         "targets": {"force_skill": 0.9, "loop_speedup": 2},
         "twin": {"enabled": False, "jitter_m": 1e-5},

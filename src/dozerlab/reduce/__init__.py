@@ -14,4 +14,6 @@ LOOP_FIELDS = (
     "divergence_overlap",
     "predicted_history",
     "step_rows",
+    "density_models",
+    "density_gain",
 )

@@ -29,6 +29,7 @@ from dozerlab.reduce.simulation import (
     ReducedState,
     bodies_of,
     compile_kernels,
+    density_correction,
 )
 from dozerlab.runtime import DozerlabError
 from dozerlab.scenarios.bed import bed_file_kind
@@ -129,6 +130,11 @@ def reduce_run(
     # each row and the pile's motion ahead of the blade fades (reduced.predicted_history).
     flow = np.zeros_like(vel)
     predicted = field_model.name in settings.predicted_history
+    # The evolution model's density of each row, which the grains are steered towards
+    # (reduced.density_models): the warm-up's rows are NDEM's, as sampled.
+    steered = field_model.name in settings.density_models and settings.density_gain > 0.0
+    field_rho = np.zeros_like(rho)
+    solid = float(config["material"]["density"])
     x, y, z = grid.centres()
     attrs = {
         "scenario": scenario or bed.scenario,
@@ -183,6 +189,7 @@ def reduce_run(
                 row = sample_row(world, blade, grid, traj, i + 1, geometry.tip_offset)
                 k = (i + 1) // every - 1
                 vel[k], rho[k] = row[1], row[2]
+                field_rho[k] = row[2]
                 flow[k] = row[1]
                 writer.append(*row)
         domain_hi = np.array([bed.length, bed.width / 2, bed.positions[:, 2].max() + 1.0])
@@ -216,6 +223,7 @@ def reduce_run(
                 t0 = times.add("field_inference", t0)
             assert pred_v is not None and pred_rho is not None  # predicted at j == 0, k = warmup
             times.rows += 1
+            field_rho[k] = pred_rho[j]
             if (k - warmup) % settings.step_rows == 0:
                 first = k
             if k < rows - 1 and k - first < settings.step_rows - 1:
@@ -228,7 +236,22 @@ def reduce_run(
             span = k - first + 1
             mean_v = (flow[first:k].sum(axis=0) + pred_v[j]) / span
             tip = traj.position[step_of[k]]
-            st = state.step(mean_v, pred_rho[j], tip, span * every * dt, times)
+            h = span * every * dt
+            # the grains as they start the step (sampled at the last step's end) against the
+            # model's density of that row
+            steer = (
+                density_correction(
+                    rho[first - 1],
+                    field_rho[first - 1],
+                    grid.bin_size,
+                    h,
+                    settings.density_gain,
+                    solid,
+                )
+                if steered
+                else None
+            )
+            st = state.step(mean_v, pred_rho[j], tip, h, times, steer)
             steps += 1
             worst_overlap = max(worst_overlap, st.max_overlap)
             worst_depth = max(worst_depth, st.body_depth)
