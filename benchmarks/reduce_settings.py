@@ -19,6 +19,11 @@ The variants run alternately point by point, so machine noise falls on all of th
 ``--results`` only. The force model was fitted to the loop fields of the workflow's settings:
 under other settings its force skill is a lower bound of what retraining would give.
 
+Each loop's line also gives, in front of the blade (the force models' part of the volume), the
+mass over NDEM's at the pass's last row (above 1: more grains there than NDEM's) and the
+density error column by column: the RMS over rows, x and z of the density summed across y
+(what the linear force model reads), over NDEM's RMS.
+
 ``--points training`` runs the training points instead: they have no twin, so the figures are
 the smoothed-surface accuracy and the low-passed force error against the point's NDEM run, and
 choosing a setting on them leaves the held-out points unseen. ``--jitter-seeds`` runs each loop
@@ -71,6 +76,22 @@ def variant(text: str, base: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     return name or text, load_config(cfg)
 
 
+def front_density(store: Any) -> np.ndarray:
+    """The density (rows, x, y, z) kg/m³ over the store's blade part (the bins in front of the blade)."""
+    x0, y0, x1, y1 = store.attrs["blade_part"]
+    return np.asarray(store["density"].values[:, x0:x1, y0:y1], np.float64)
+
+
+def front_figures(run: Any, ndem: Any) -> tuple[float, float]:
+    """The run's mass in front of the blade over NDEM's at the last row, and its (x, z) column
+    density error over NDEM's RMS (the module doc)."""
+    a, b = front_density(ndem), front_density(run)
+    n = min(len(a), len(b))
+    cols_a, cols_b = a[:n].sum(axis=2), b[:n].sum(axis=2)
+    error = np.sqrt(np.mean((cols_b - cols_a) ** 2) / np.mean(cols_a**2))
+    return float(b[n - 1].sum() / a[n - 1].sum()), float(error)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("variants", nargs="+", help="NAME:KEY=VALUE,... (see the module doc)")
@@ -83,6 +104,7 @@ def main() -> None:
     args = ap.parse_args()
     os.environ.setdefault("DOZERLAB_MLFLOW", "0")
     set_threads(args.threads)
+    from dozerlab.fields.store import open_store
     from dozerlab.reduce.compare import compare_point
     from dozerlab.reduce.models import ForcePredictor, load_field_model
     from dozerlab.reduce.run import reduce_run
@@ -100,7 +122,7 @@ def main() -> None:
         else ("surface_accuracy_skill", "force_lp_rel_rmse_skill")
     )
     force = ForcePredictor(P.reduce_force_model_path(res, base["reduced"], args.dynamics))
-    figures: dict[str, list[list[tuple[float, float, float, float]]]] = {n: [] for n, _ in variants}
+    figures: dict[str, list[list[tuple[float, ...]]]] = {n: [] for n, _ in variants}
     with tempfile.TemporaryDirectory() as tmp:
         for pt in points:
             model = load_field_model(
@@ -146,7 +168,10 @@ def main() -> None:
                     )
                     surface, force_fig = m[surface_key], m[force_key]
                     speedup = m.get("loop_speedup") or float("nan")
-                    draws.append((r["wall_time_s"], speedup, surface, force_fig))
+                    front, columns = front_figures(
+                        open_store(store), open_store(P.field_path(res, pt))
+                    )
+                    draws.append((r["wall_time_s"], speedup, surface, force_fig, front, columns))
                     print(
                         f"{name:>12} {pt.scenario} {pt.speed}/{pt.depth}"
                         f"{f' (bed jittered, seed {seed})' if seed else ''}: loop "
@@ -155,12 +180,13 @@ def main() -> None:
                         f"sweeps, {r.get('projection_tests_mean', np.nan) / 1e3:.0f}k contact tests "
                         f"and {r['active_grains_mean']:.0f} grains moved a step, largest overlap "
                         f"{r['max_overlap']:.3f} r, {surface_key.replace('_', ' ')} {surface:.3f}, "
-                        f"{force_key.replace('_', ' ')} {force_fig:.2f}",
+                        f"{force_key.replace('_', ' ')} {force_fig:.2f}, front mass {front:.3f}x NDEM's, "
+                        f"column density error {columns:.3f}",
                         flush=True,
                     )
                 figures[name].append(draws)
     for name, rows in figures.items():
-        a = np.array(rows)  # (points, draws, 4)
+        a = np.array(rows)  # (points, draws, 6)
         mean = a.mean(axis=1)
         spread = (
             f", spread (sd over the draws) {np.round(a[:, :, 2].std(axis=1, ddof=1), 3).tolist()}"
@@ -171,7 +197,9 @@ def main() -> None:
             f"{name}: loops {a[:, :, 0].sum():.2f} s in all, speed-up "
             f"{np.round(mean[:, 1], 1).tolist()}, {surface_key.replace('_', ' ')} "
             f"{np.round(mean[:, 2], 3).tolist()} (mean {mean[:, 2].mean():.3f}){spread}, "
-            f"{force_key.replace('_', ' ')} {np.round(mean[:, 3], 2).tolist()}"
+            f"{force_key.replace('_', ' ')} {np.round(mean[:, 3], 3).tolist()} (mean "
+            f"{mean[:, 3].mean():.3f}), front mass over NDEM's {np.round(mean[:, 4], 3).tolist()}, "
+            f"column density error {np.round(mean[:, 5], 3).tolist()}"
         )
 
 
