@@ -366,18 +366,28 @@ def render(ctx: Context) -> str | None:
             "caption",
         ),
     ]
+    reduced = ctx.cfg["reduced"]
     for model, doc in docs.items():
         path = reduced_comparison_path(ctx.results, model)
         t = doc["targets"]
         parts.append(f"<h3>{html.esc(model)}</h3>")
         parts.append(html.paragraph(_model_verdict(model, doc)))
+        steered = model in reduced["density_models"] and reduced["density_gain"] > 0
         if model == REPLAY:
             parts.append(
                 html.paragraph(
-                    "replay feeds the loop NDEM's own fields: its errors are the loop's "
-                    "(advection, projection, what the fields cannot carry) alone."
+                    "replay feeds the loop NDEM's own fields"
+                    + (
+                        ", its velocity moving the grains and its density steering them"
+                        if steered
+                        else ""
+                    )
+                    + ": its errors are the loop's (advection, projection, what the fields cannot "
+                    "carry) alone."
                 )
             )
+        elif steered:
+            parts.append(html.paragraph(f"The grains are steered towards {model}'s density too."))
         forces = sorted({str(p.get("force_model")) for p in doc["points"]})
         parts.append(
             html.paragraph(
