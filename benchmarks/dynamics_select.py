@@ -75,10 +75,11 @@ def main() -> None:
             for vi, (name, cfg) in enumerate(variants):
                 out = Path(tmp) / f"model-{fold}-{vi}"
                 t0 = time.perf_counter()
-                train_dynamics_job(
+                fit = train_dynamics_job(
                     args.model, [P.field_path(res, p) for p in seen], cfg, out, progress=False
                 )
                 trained = time.perf_counter() - t0
+                kept = "" if fit.penalty is None else f", penalty {fit.penalty:g}"
                 for pt in unseen:
                     model = load_field_model(out, grid)
                     store, state = Path(tmp) / "run.zarr", Path(tmp) / "run.npz"
@@ -105,7 +106,7 @@ def main() -> None:
                     acc[name][pt.key] = m["surface_accuracy"]
                     print(
                         f"{name:>12} fold {args.folds} {fold} (trained on {len(seen)} points in "
-                        f"{trained:.0f} s): {pt.scenario} {pt.speed}/{pt.depth} loop "
+                        f"{trained:.0f} s{kept}): {pt.scenario} {pt.speed}/{pt.depth} loop "
                         f"{r['wall_time_s']:.2f} s, largest overlap {r['max_overlap']:.3f} r, "
                         f"smoothed-surface accuracy {m['surface_accuracy']:.3f}",
                         flush=True,

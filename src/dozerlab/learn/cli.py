@@ -131,8 +131,13 @@ def _train(args: argparse.Namespace) -> int:
     extra = {"loop_fields": args.loop_fields} if getattr(args, "loop_fields", None) else {}
     result = job(args.run)(args.model, args.train, config, args.out, device=args.device, **extra)
     prefix, loss, samples = args.report
+    best = (
+        f"epoch {result.best_epoch + 1}"
+        if result.penalty is None
+        else f"penalty {result.penalty:g}"
+    )
     print(
-        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at epoch {result.best_epoch + 1} "
+        f"{prefix}{args.model}: {loss} {min(result.val_loss):.4g} at {best} "
         f"({result.samples['train']} training {samples}, {result.seconds:.1f} s) -> {args.out}"
     )
     return 0

@@ -206,6 +206,7 @@ def _train(
                     f"best_{family.val_metric}": min(result.val_loss),
                     "best_epoch": result.best_epoch,
                     "train_seconds": result.seconds,
+                    **({} if result.penalty is None else {"penalty": result.penalty}),
                 }
             )
             with tempfile.TemporaryDirectory() as d:

@@ -32,7 +32,8 @@ __all__ = ["TrainResult", "TrainingDiverged", "device_for", "train_model"]
 
 @dataclass
 class TrainResult:
-    """A trained model with its loss history (per epoch) and timing (s)."""
+    """A trained model with its loss history (per epoch) and timing (s). A closed-form fit
+    over candidate penalties has one "epoch" per penalty and ``penalty``, the one it kept."""
 
     model: Any  # a ForceModel, or a DynamicsModel from learn.dynamics.train
     train_loss: list[float] = field(default_factory=list)
@@ -42,6 +43,7 @@ class TrainResult:
     seconds: float = 0.0
     data_seconds: float = 0.0
     model_uri: str = ""
+    penalty: float | None = None
 
 
 class Batches(SampleTensors):

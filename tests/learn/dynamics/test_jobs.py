@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from dozerlab.cli import main
+from dozerlab.config import load_config
 from dozerlab.learn.data import load_store
 from dozerlab.learn.dynamics import pyfunc
 
@@ -45,6 +46,9 @@ def test_cli_trains_validates_and_logs_to_mlflow(tracking, store_files, capsys):
         )
         == 0
     )
+    # the ridge's "epochs" are its candidate penalties: the line names the one kept
+    kept = capsys.readouterr().out
+    assert "validation rollout loss" in kept and " at penalty " in kept and " at epoch " not in kept
     js = tracking / "results" / "dynamics" / "ridge.json"
     held = [
         "--interpolation",
@@ -72,6 +76,9 @@ def test_cli_trains_validates_and_logs_to_mlflow(tracking, store_files, capsys):
     assert sorted(runs["tags.rule"]) == ["train_dynamics", "validate_dynamics"]
     trained = runs[runs["tags.rule"] == "train_dynamics"].iloc[0]
     assert trained["metrics.train_seconds"] > 0 and trained["params.dynamics.history"] == "2"
+    alphas = load_config(json.loads(CONFIG))["dynamics"]["ridge_alphas"]
+    assert trained["metrics.penalty"] == alphas[int(trained["metrics.best_epoch"])]
+    assert f" at penalty {trained['metrics.penalty']:g} " in kept
     logged = mlflow.pyfunc.load_model(f"runs:/{trained['run_id']}/model")
     s = load_store(store_files["interpolation"][0])
     inputs = {

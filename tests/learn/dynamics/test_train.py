@@ -44,6 +44,8 @@ def test_the_ridge_tries_every_alpha_keeps_the_best_and_beats_persistence(moving
     persistence = train_dynamics("persistence", moving, CFG, progress=False)
     assert len(ridge.train_loss) == len(ridge.val_loss) == len(CFG["dynamics"]["ridge_alphas"])
     assert ridge.best_epoch == int(np.argmin(ridge.val_loss))
+    assert ridge.penalty == CFG["dynamics"]["ridge_alphas"][ridge.best_epoch]
+    assert persistence.penalty is None
     assert min(ridge.val_loss) < 0.1 * persistence.val_loss[0]
     # three rows a call: each store gives two training windows fewer than persistence's one row
     assert (ridge.model.horizon, persistence.model.horizon) == (3, 1)

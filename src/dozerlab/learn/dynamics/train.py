@@ -256,6 +256,7 @@ def train_dynamics(
             on_epoch,
             progress,
         )
+        result.penalty = float(dyn["ridge_alphas"][result.best_epoch])
     elif kind == "unet":
         _fit_unet(model, train, val, dyn, seed, rho_scale, result, on_epoch, progress)
     else:
