@@ -29,6 +29,8 @@ from dozerlab.reduce.compare import (
     skills,
     sliced_emd,
     smoothed_surface,
+    surface_errors,
+    surface_regions,
     targets_met,
     transfer_gap,
 )
@@ -211,6 +213,43 @@ def test_surface_accuracy_of_surfaces_shifted_by_known_amounts():
         assert height_accuracy(run, ndem, bed) == pytest.approx(accuracy, abs=1e-9)
 
 
+def test_surface_regions_split_the_bed_at_the_blades_last_tip_and_its_swath():
+    """A 4 m × 1 m bed of 0.1 m cells, a 0.4 m blade driven along y = 0.1 to x = 2.5 m."""
+    path = np.column_stack([np.linspace(0.0, 2.5, 26), np.full(26, 0.1), np.zeros(26)])
+    r = surface_regions((40, 10), 4.0, 1.0, path, 0.4)
+    x = (np.arange(40) + 0.5) * 0.1
+    y = (np.arange(10) + 0.5) * 0.1 - 0.5
+    assert set(r) == {"swath", "beside", "ahead"}
+    total = sum(m.astype(int) for m in r.values())
+    np.testing.assert_array_equal(total, 1)  # every cell in exactly one region
+    np.testing.assert_array_equal(r["ahead"], np.broadcast_to((x >= 2.5)[:, None], (40, 10)))
+    # behind the tip, the swath is |y − 0.1| < 0.2: the cells at y = -0.05 … 0.25
+    inside = np.abs(y - 0.1) < 0.2
+    np.testing.assert_array_equal(r["swath"][x < 2.5], np.broadcast_to(inside, (25, 10)))
+    assert r["swath"][x < 2.5].sum(axis=1).tolist() == [4] * 25
+
+
+def test_surface_errors_say_where_the_error_lies_and_add_up_to_the_accuracy():
+    """NDEM lifts the whole bed 40 mm; the run lifts it 40 mm but for the strips beside the swath,
+    where it lifts 20 mm, and ahead, where it lifts 50 mm."""
+    path = np.column_stack([np.linspace(0.0, 1.0, 11), np.zeros(11), np.zeros(11)])
+    r = surface_regions((20, 10), 2.0, 1.0, path, 0.4)
+    bed = np.zeros((20, 10))
+    ndem = bed + 0.04
+    run = ndem.copy()
+    run[r["beside"]] = 0.02
+    run[r["ahead"]] = 0.05
+    e = surface_errors(run, ndem, bed, r)
+    n = 200.0 * 0.04  # NDEM's change over the bed
+    assert e["surface_error_swath"] == 0.0 and e["surface_excess_swath"] == 0.0
+    assert e["surface_error_beside"] == pytest.approx(r["beside"].sum() * 0.02 / n)
+    assert e["surface_excess_beside"] == pytest.approx(-e["surface_error_beside"])
+    assert e["surface_excess_ahead"] == pytest.approx(100 * 0.01 / n)
+    errors = sum(e[f"surface_error_{k}"] for k in r)
+    assert 1.0 - errors == pytest.approx(height_accuracy(run, ndem, bed))
+    assert all(math.isnan(v) for v in surface_errors(run, bed, bed, r).values())
+
+
 def test_low_passed_forces_that_differ_only_faster_than_the_window_agree():
     dt, t = 0.01, np.arange(300) * 0.01
     force = 2.0 + np.sin(2 * np.pi * t / 2.0)  # a 2 s swell
@@ -231,6 +270,9 @@ def test_a_run_against_itself_has_no_error(ndem_run):
     assert m["density_rel_l2"] == 0.0 and m["final_emd_m"] == 0.0
     assert m["force_lp_rel_rmse"] == 0.0 and m["force_mean_rel_err"] == 0.0
     assert m["height_accuracy"] == 1.0 and m["surface_accuracy"] == 1.0
+    regions = ("swath", "beside", "ahead")
+    assert all(m[f"surface_{w}_{r}"] == 0.0 for w in ("error", "excess") for r in regions)
+    assert series["surface_reduced"].shape == series["surface_ndem"].shape
     assert m["loop_speedup"] == 1.0
     assert m["left_bed"] == m["left_bed_ndem"] and m["job_speedup"] is None
     assert series["force_ndem"].shape == (m["rows"], 3)

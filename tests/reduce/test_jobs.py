@@ -64,7 +64,9 @@ def test_ndem_compared_with_itself_meets_the_accuracy_targets_only(ndem_run, tmp
     assert entry["targets_met"]["replay_surface_skill"]
     assert entry["targets_met"]["loop_speedup"] is False  # the same run: 1×, not 50×
     assert sorted(p.name for p in plots.iterdir()) == sorted([FOLDER_MARK, *entry["plots"]])
-    assert len(entry["plots"]) == 3  # force, fields, height; no GIF
+    assert len(entry["plots"]) == 4  # force, fields, height, surface; no GIF
+    assert entry["surface_error_beside"] == 0.0 == summary["overall"]["all"]["surface_error_beside"]
+    assert summary["overall"]["all"]["twin_surface_excess_ahead"] == 0.0
     assert summary["overall"]["interpolation"] == summary["overall"]["all"]
     assert summary["overall"]["all"]["loop_speedup"] == 1.0
 

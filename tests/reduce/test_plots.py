@@ -33,7 +33,7 @@ def test_the_comparison_plots_and_animation_are_dozerlab_outputs_and_replace_not
     twin = (store, state)  # NDEM as its own twin: the plots draw a third run
     metrics, series = compare_point(store, store, tmp / "bed.npz", state, state, config, twin=twin)
     metrics = {**metrics, "dynamics_model": "replay"}
-    for draw in (plots.plot_force, plots.plot_errors, plots.plot_height):
+    for draw in (plots.plot_force, plots.plot_errors, plots.plot_height, plots.plot_surface):
         out = draw(series, metrics, tmp_path / f"{draw.__name__}.png")
         assert FIGURE.recognise(out)
     ds = open_store(store)

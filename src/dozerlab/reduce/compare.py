@@ -8,6 +8,10 @@ Per point (both runs start from the same settled bed and follow the same traject
 - **smoothed surface accuracy**: the same ratio on the spheres' top surface over a lattice of
   σ/4 cells smoothed by a Gaussian of σ = one mean grain diameter: the scale on which two NDEM
   runs from beds a micrometre apart agree (the grain scale is their chaos);
+- **where the surface departs**: that accuracy's error split over the swath the blade cut, the
+  strips beside it (the windrows) and the bed ahead of the blade's last position (the carried
+  pile), each part's Σ|h − h_ndem| and Σ(h − h_ndem) over the whole bed's Σ|h_ndem − h_bed|
+  (:func:`surface_errors`);
 - **force**: relative RMSE of the pushing force (x) and of |F| over the rows the reduced loop
   made (the warm-up rows excluded), RMSE / RMS of NDEM's; the pushing force low-passed
   over 0.1 s (a centred moving mean, :data:`FORCE_WINDOW`), its relative RMSE, and the relative
@@ -108,6 +112,47 @@ def smoothed_surface(
     shape = (max(1, round(length / cell)), max(1, round(width / cell)))
     _, h = height_field(positions, radii, length, width, shape)
     return gaussian_smooth(h, sigma / (length / shape[0]))
+
+
+def surface_regions(
+    shape: tuple[int, int], length: float, width: float, path: np.ndarray, blade_width: float
+) -> dict[str, np.ndarray]:
+    """Boolean masks (Sx, Sy) of the parts of the bed (``length`` × ``width`` m, a lattice of
+    ``shape`` cells like :func:`smoothed_surface`'s) its error is split over
+    (:data:`SURFACE_REGIONS`): ``ahead`` of the blade's last position (x at or beyond its tip's),
+    and behind it the ``swath`` the blade cut (within half ``blade_width`` (m) of the path's y at
+    that x) and the strips ``beside`` it, where the windrows lie. ``path`` (T, 3): the blade
+    tip's positions (m) row by row; cells before the path's start take its first y."""
+    nx, ny = shape
+    x = (np.arange(nx) + 0.5) * length / nx
+    y = (np.arange(ny) + 0.5) * width / ny - width / 2
+    px, py = path[:, 0], path[:, 1]
+    order = np.argsort(px, kind="stable")
+    inside = np.abs(y[None, :] - np.interp(x, px[order], py[order])[:, None]) < blade_width / 2
+    behind = np.broadcast_to((x < px[-1])[:, None], shape)
+    return {"swath": behind & inside, "beside": behind & ~inside, "ahead": ~behind}
+
+
+def surface_errors(
+    surface: np.ndarray, ndem: np.ndarray, bed: np.ndarray, regions: Mapping[str, np.ndarray]
+) -> dict[str, float]:
+    """Where a smoothed surface departs from NDEM's (all (Sx, Sy), m), per region of
+    :func:`surface_regions`: ``surface_error_<region>`` = Σ|h − h_ndem| over the region, and
+    ``surface_excess_<region>`` = Σ(h − h_ndem) over it (above 0: too much material there), both
+    over Σ|h_ndem − h_bed| over the whole bed, the smoothed-surface accuracy's denominator: the
+    errors of the regions add up to 1 − the accuracy. NaN when NDEM left the bed unchanged."""
+    moved = float(np.abs(ndem - bed).sum())
+    diff = surface - ndem
+    out = {}
+    for name, mask in regions.items():
+        err, excess = (
+            (float(np.abs(diff[mask]).sum()) / moved, float(diff[mask].sum()) / moved)
+            if moved > 0.0
+            else (float("nan"), float("nan"))
+        )
+        out[f"surface_error_{name}"] = err
+        out[f"surface_excess_{name}"] = excess
+    return out
 
 
 def low_pass(series: np.ndarray, dt: float, window: float) -> np.ndarray:
@@ -277,6 +322,8 @@ FIGURES = {
 #: The figures measured against NDEM's expected run (the mean over the twin draws), both kinds as
 #: in :data:`FIGURES`.
 EXPECTED_FIGURES = {"surface_accuracy": "accuracy", "force_lp_rel_rmse": "error"}
+#: The parts of the bed the smoothed surface's error is split over (:func:`surface_regions`).
+SURFACE_REGIONS = ("swath", "beside", "ahead")
 #: The window (s) of the low-passed pushing force: the scale NDEM's force reproduces.
 FORCE_WINDOW = 0.1
 
@@ -286,7 +333,8 @@ class Reference:
     """NDEM's run of a point, read once for every run measured against it: the bed and NDEM's
     final state, their grain-scale height fields and smoothed surfaces (m), the force rows
     (T, 3) N, the fields (velocity (T, Nx, Ny, Nz, 3) m/s, density (T, Nx, Ny, Nz) kg/m³), the
-    rows' times and period (s), the stepping loop's wall time (s) and the store's sizes."""
+    rows' times and period (s), the stepping loop's wall time (s), the store's sizes, the blade
+    tip's path (T, 3) m and the smoothed surface's regions (:func:`surface_regions`)."""
 
     bed: Any
     end: Any
@@ -304,6 +352,8 @@ class Reference:
     sizes: dict[str, int]
     subdivisions: tuple[int, int]
     moved_radii: float
+    path: np.ndarray
+    regions: dict[str, np.ndarray]
 
     @property
     def sigma(self) -> float:
@@ -335,6 +385,8 @@ def reference(
     hx, h0 = height_field(bed.positions, bed.radii, bed.length, bed.width, sub)
     _, hn = height_field(end.positions, bed.radii, bed.length, bed.width, sub)
     sigma = surface_sigma(bed.radii)
+    surface_bed = smoothed_surface(bed.positions, bed.radii, bed.length, bed.width, sigma)
+    path = nd["blade_position"].values.astype(np.float64)
     time = nd["time"].values
     return Reference(
         bed=bed,
@@ -342,7 +394,7 @@ def reference(
         height_x=hx,
         height_bed=h0,
         height_ndem=hn,
-        surface_bed=smoothed_surface(bed.positions, bed.radii, bed.length, bed.width, sigma),
+        surface_bed=surface_bed,
         surface_ndem=smoothed_surface(end.positions, bed.radii, bed.length, bed.width, sigma),
         force=nd["force"].values.astype(np.float64),
         velocity=nd["velocity"].values,
@@ -353,6 +405,10 @@ def reference(
         sizes={str(k): int(v) for k, v in nd.sizes.items()},
         subdivisions=sub,
         moved_radii=float(config["reduced"]["moved_radii"]),
+        path=path,
+        regions=surface_regions(
+            surface_bed.shape, bed.length, bed.width, path, float(config["blade"]["width"])
+        ),
     )
 
 
@@ -361,7 +417,8 @@ def against_ndem(
 ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """The :data:`FIGURES` of one run (its store, an xarray Dataset aligned row by row with
     NDEM's, and its final state, a ``Bed``) against NDEM's (``ref``), the force and field
-    figures over ``rows``; and its series: ``force`` (T, 3) N, ``velocity_error`` /
+    figures over ``rows``, with the surface's error by region (:func:`surface_errors`); and its
+    series: ``force`` (T, 3) N, ``velocity_error`` /
     ``density_error`` (T,), ``height`` (Nx, Ny) m, ``moved`` (the grains either run moved)."""
     from dozerlab.scenarios.heightfield import height_field
 
@@ -399,6 +456,7 @@ def against_ndem(
         "moved_grains": int(moved.sum()),
         "final_emd_m": sliced_emd(a, b),
         "final_mean_distance_m": float(np.linalg.norm(a - b, axis=1).mean()) if len(a) else 0.0,
+        **surface_errors(surface, ref.surface_ndem, ref.surface_bed, ref.regions),
     }
     series = {
         "force": force,
@@ -477,7 +535,10 @@ def compare_point(
     Returns (metrics, series): series holds ``time`` (T,), ``force_ndem``/``force_reduced``
     (and ``force_twin``) (T, 3) N, ``force_window`` (s), ``velocity_error``/``density_error``
     (T,), ``height_x`` (Nx,) and the y-mean height profiles ``height_bed``/``height_ndem``/
-    ``height_reduced`` (and ``height_twin``) (Nx,) m, ``warmup`` rows.
+    ``height_reduced`` (and ``height_twin``) (Nx,) m, ``warmup`` rows, the smoothed surfaces
+    ``surface_bed``/``surface_ndem``/``surface_reduced`` (and ``surface_twin``) (Sx, Sy) m over
+    the bed's ``extent`` (length, width) m, and the blade tip's ``path`` (T, 3) m and
+    ``blade_width`` m (the regions' bounds).
     """
     from dozerlab.fields.store import open_store
     from dozerlab.scenarios.bed import Bed
@@ -532,6 +593,12 @@ def compare_point(
         "height_ndem": ref.height_ndem.mean(axis=1),
         "height_reduced": run["height"].mean(axis=1),
         "warmup": np.array(warm),
+        "surface_bed": ref.surface_bed,
+        "surface_ndem": ref.surface_ndem,
+        "surface_reduced": run["surface"],
+        "extent": np.array([bed.length, bed.width]),
+        "path": ref.path,
+        "blade_width": np.array(float(config["blade"]["width"])),
     }
     if draws and twin is None:
         raise ValueError("further twin draws need the twin itself")
@@ -551,7 +618,11 @@ def compare_point(
         metrics |= {f"twin_{k}": v for k, v in twin_figures.items()}
         metrics |= skills(figures, twin_figures)
         twin_run = measured[0][1]
-        series |= {"force_twin": twin_run["force"], "height_twin": twin_run["height"].mean(axis=1)}
+        series |= {
+            "force_twin": twin_run["force"],
+            "height_twin": twin_run["height"].mean(axis=1),
+            "surface_twin": twin_run["surface"],
+        }
         if draws:
             runs = [r for _, r in measured]
             mine = against_expected(ref, run["force"], run["surface"], runs, tail)

@@ -46,12 +46,21 @@ _FIGURES = (
     "density_rel_l2",
     "final_emd_m",
 )
+#: The smoothed surface's error and excess by region (dozerlab.reduce.compare.surface_errors),
+#: the run's and the twin's: means over the points.
+_REGIONS = tuple(
+    f"{who}surface_{what}_{r}"
+    for who in ("", "twin_")
+    for what in ("error", "excess")
+    for r in ("swath", "beside", "ahead")
+)
 #: Those measured against NDEM's expected run too (dozerlab.reduce.compare.EXPECTED_FIGURES).
 _EXPECTED = ("surface_accuracy", "force_lp_rel_rmse")
 AGGREGATE: dict[str, Callable[[list[float]], Any]] = {
     **dict.fromkeys(_FIGURES, np.mean),
     **{f"twin_{k}": np.mean for k in _FIGURES},
     **{f"{k}_skill": np.mean for k in _FIGURES},
+    **dict.fromkeys(_REGIONS, np.mean),
     **{f"{who}{k}": np.mean for k in _EXPECTED for who in ("expected_", "ndem_expected_")},
     **{f"expected_{k}_skill": np.mean for k in _EXPECTED},
     "max_overlap_loop": np.max,
@@ -305,6 +314,7 @@ def _compare(
                     rp.plot_force(series, metrics, tmp_plots / f"{stem}_force.png"),
                     rp.plot_errors(series, metrics, tmp_plots / f"{stem}_fields.png"),
                     rp.plot_height(series, metrics, tmp_plots / f"{stem}_height.png"),
+                    rp.plot_surface(series, metrics, tmp_plots / f"{stem}_surface.png"),
                 ]
                 if animation:
                     files.append(

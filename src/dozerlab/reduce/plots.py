@@ -1,4 +1,5 @@
-"""Figures of a reduced run next to its NDEM run: force, field errors, bed profile, animation.
+"""Figures of a reduced run next to its NDEM run: force, field errors, bed profile, where the
+smoothed surface departs from NDEM's, animation.
 
 The animation puts the two runs side by side, frame by frame: the middle y-slice of each store
 (density as a heat map, in-plane velocity relative to the blade as arrows, as
@@ -106,6 +107,54 @@ def plot_height(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | 
     ax.set_title(
         f"{_title(metrics)}: height accuracy {metrics['height_accuracy']:.1%}", fontsize=10
     )
+    return _save(fig, path)
+
+
+def plot_surface(series: Mapping[str, np.ndarray], metrics: Mapping, path: str | Path) -> Path:
+    """Where the smoothed surface departs from NDEM's: the run's surface minus NDEM's over the
+    bed (mm, red too high, blue too low) and beneath it the twin's, on one colour scale, with
+    the regions its error is split over (the blade's last tip position, the swath's edges) and
+    each region's error in the panel's title."""
+    from dozerlab.reduce.compare import SURFACE_REGIONS
+
+    panels = [("reduced", "surface_reduced", "")]
+    if "surface_twin" in series:
+        panels.append(("NDEM's twin", "surface_twin", "twin_"))
+    length, width = (float(v) for v in series["extent"])
+    diffs = [1e3 * (series[key] - series["surface_ndem"]) for _, key, _ in panels]
+    top = float(max(np.percentile(np.abs(d), 99.5) for d in diffs)) or 1.0
+    tip, half = series["path"], 0.5 * float(series["blade_width"])
+    behind = tip[:, 0] <= tip[-1, 0]
+    fig = Figure(figsize=(9, 1.2 + 2.3 * len(panels)), layout="constrained")
+    axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, (name, _, prefix), d in zip(axes, panels, diffs, strict=True):
+        image = ax.imshow(
+            d.T,
+            origin="lower",
+            extent=(0.0, length, -width / 2, width / 2),
+            cmap="RdBu_r",
+            vmin=-top,
+            vmax=top,
+            aspect="auto",
+            interpolation="nearest",
+        )
+        for edge in (-half, half):
+            ax.plot(tip[behind, 0], tip[behind, 1] + edge, "k--", lw=0.8)
+        ax.axvline(tip[-1, 0], color="k", lw=0.8)
+        ax.set_xlim(0.0, length)  # the path starts before the bed
+        parts = ", ".join(
+            f"{r} {metrics.get(f'{prefix}surface_error_{r}', float('nan')):.1%}"
+            for r in SURFACE_REGIONS
+        )
+        ax.set_title(
+            f"{name} − NDEM: accuracy {metrics.get(f'{prefix}surface_accuracy', float('nan')):.1%}"
+            f"; error by region (of NDEM's change) {parts}",
+            fontsize=9,
+        )
+        ax.set_ylabel("y (m)")
+        fig.colorbar(image, ax=ax, label="height − NDEM's (mm)", shrink=0.9)
+    axes[-1].set_xlabel("x (m); dashed: the swath's edges, solid: the blade's last tip position")
+    fig.suptitle(f"{_title(metrics)}: smoothed surface against NDEM's", fontsize=10)
     return _save(fig, path)
 
 

@@ -62,8 +62,13 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "2.0",
         "1.0",
     ]
+    # where the surface departs from NDEM's: each region's error and excess beside the twin's
+    assert "Where the smoothed surface departs from NDEM&#x27;s" in text
+    regions = table_cells(text, 2)[2:]
+    assert regions[:6] == ["10.0", "5.0", "8.0", "2.0", "10.0", "3.0"]  # errors
+    assert regions[6:] == ["2.0", "1.0", "-6.0", "-1.0", "5.0", "0.0"]  # excess
     # the grain scale and the fields, beside the twin's
-    assert table_cells(text, 2)[2:] == [
+    assert table_cells(text, 3)[2:] == [
         "90.0",
         "75.0",
         "30.0",
@@ -75,7 +80,7 @@ def test_a_comparison_becomes_a_table_and_a_block_of_plots(tmp_path):
         "4.2",
         "1",
     ]
-    assert table_cells(text, 3)[2:] == ["5.0", "0", "62.0", "–"]
+    assert table_cells(text, 4)[2:] == ["5.0", "0", "62.0", "–"]
     assert (
         "<summary>hill: speed 0.75 m/s, depth 0.1 m — targets missed: replay_surface_skill</summary>"
         in text
@@ -120,6 +125,18 @@ def test_without_twins_the_tables_hold_the_figures_alone(tmp_path):
     )
 
 
+def test_a_comparison_without_the_regions_shows_no_table_of_them(tmp_path):
+    reduced_json(tmp_path, "ridge")
+    path = tmp_path / "reduced" / "ridge.json"
+    doc = json.loads(path.read_text())
+    doc["points"] = [{k: v for k, v in p.items() if "surface_e" not in k} for p in doc["points"]]
+    path.write_text(json.dumps(doc))
+    cfg = load_config({**SMALL_SWEEP, "reduced": {"dynamics_models": ["ridge"]}})
+    text = reduced.render(report_context(cfg, tmp_path))
+    assert "Where the smoothed surface departs" not in text
+    assert table_cells(text, 2)[2] == "90.0"  # the grain scale's table comes next
+
+
 def test_a_skill_or_speed_up_a_hair_off_its_target_is_shown_on_its_side(tmp_path):
     reduced_json(tmp_path, "ridge")
     path = tmp_path / "reduced" / "ridge.json"
@@ -134,7 +151,7 @@ def test_a_skill_or_speed_up_a_hair_off_its_target_is_shown_on_its_side(tmp_path
     text = reduced.render(report_context(cfg, tmp_path))
     assert table_cells(text, 1)[4] == "0.89998"  # not "0.90" against the target 0.9
     # not "10.0" against an overlap of at most 10 %, nor "40.0" against the target 40
-    assert table_cells(text, 3)[2:5] == ["10.004", "0", "39.96"]
+    assert table_cells(text, 4)[2:5] == ["10.004", "0", "39.96"]
 
 
 def test_the_verdict_says_its_figures_are_means_over_the_held_out_points(tmp_path):

@@ -1,7 +1,8 @@
 """The live reduced simulation against NDEM on the held-out points: per dynamics model a verdict
 and tables of the comparison's figures (``results/reduced/{model}.json``), each beside NDEM's
-twin's with the skill where the twins ran, with the targets, and per point the force,
-field-error and bed-profile plots and the side-by-side animation (a file beside the page)."""
+twin's with the skill where the twins ran, with the targets, where the smoothed surface departs
+from NDEM's, and per point the force, field-error, bed-profile and surface-difference plots and
+the side-by-side animation (a file beside the page)."""
 
 from __future__ import annotations
 
@@ -59,6 +60,13 @@ def _skill_bounds(t: dict[str, Any], replay: bool) -> dict[str, float]:
     return {"surface_accuracy": surface, "force_lp_rel_rmse": t["force_skill"]}
 
 
+#: Where the smoothed surface departs from NDEM's (dozerlab.reduce.compare.surface_errors): each
+#: region's error and excess as shares of NDEM's change of the bed, beside the twin's.
+REGIONS = [
+    (f"surface_{what}_{region}", f"{what}, {name}", "%", _pct)
+    for what in ("error", "excess")
+    for region, name in (("swath", "swath"), ("beside", "beside it"), ("ahead", "ahead"))
+]
 GRAIN_SCALE = [
     ("height_accuracy", "height accuracy (grain cells)", "%", _pct),
     ("force_x_rel_rmse", "force x rel. RMSE", "%", _pct),
@@ -430,6 +438,19 @@ def render(ctx: Context) -> str | None:
                 )
             )
             parts.append(_expected_table(points))
+        if any("surface_error_swath" in p for p in points):
+            parts.append(
+                html.paragraph(
+                    "Where the smoothed surface departs from NDEM's: the swath the blade cut, the "
+                    "strips beside it (the windrows) and the bed ahead of the blade's last "
+                    "position (the pile it carries). Error: the region's Σ|h − h_NDEM|, excess: "
+                    "its Σ(h − h_NDEM) (below 0: too little material there), both as shares of "
+                    "NDEM's change of the whole bed, Σ|h_NDEM − h_bed|; the errors add up to "
+                    "100 % less the accuracy. Each point's surface plot maps them.",
+                    "caption",
+                )
+            )
+            parts.append(_figure_table(REGIONS, points))
         parts.append(html.paragraph("The grain scale and the fields around the blade:", "caption"))
         parts.append(_figure_table(GRAIN_SCALE, points))
         parts.append(
