@@ -257,3 +257,38 @@ def test_a_blade_that_starts_at_the_bed_is_stepped_by_ndem_through_the_warm_up(n
     warm = int(stored.attrs["warmup_rows"])
     assert stored.attrs["warmup_stepped"] is True
     assert np.abs(stored["force"].values[:warm, 0]).max() > 0  # NDEM's blade pushed the grains
+
+
+class _Lifter(_Uniform):
+    """A uniform field that lifts the material faster than it pushes it."""
+
+    name = "lifter"
+    u = np.array([0.3, 0.0, 0.8], np.float32)
+
+
+def test_only_the_loops_of_crest_models_lift_the_piles_crest(ndem_run):
+    tmp, config = ndem_run
+    tops = {}
+    for name, models, bins in [
+        ("unlisted", ["replay"], 0.5),
+        ("off", ["lifter"], 0.0),
+        ("lifted", ["lifter"], 0.5),
+    ]:
+        model = _Lifter(SamplingGrid.from_config(config).bins)
+        reduce_run(
+            tmp / "bed.npz",
+            tmp / "speed~0.5_depth~0.06.csv",
+            {
+                **config,
+                "reduced": {**config["reduced"], "crest_models": models, "crest_bins": bins},
+            },
+            model,
+            ForcePredictor(tmp / "linear"),
+            tmp / f"{name}.zarr",
+            tmp / f"{name}.npz",
+        )
+        tops[name] = Bed.load(tmp / f"{name}.npz").positions[:, 2]
+    # a model not in crest_models runs the loop without the crest, to the bit
+    np.testing.assert_array_equal(tops["unlisted"], tops["off"])
+    # with it, the grains the top bins lift over the volume's top keep rising with them
+    assert tops["lifted"].max() > tops["off"].max() + 0.01

@@ -137,20 +137,23 @@ def test_the_summary_answers_the_four_questions_before_the_sections(tmp_path):
     for name in shown:
         assert (out.parent / "animations" / name).read_bytes() == gif
     assert out.stat().st_size < 1_000_000 < len(gif)
-    # replay's grains are steered towards its density (reduced.density_models), the ridge's not
-    assert "its velocity moving the grains and its density steering them" in text
-    assert "steered towards ridge" not in text
+    # replay's grains are steered towards its density (reduced.density_models) and its pile's
+    # crest lifted (reduced.crest_models), the ridge's not
+    assert "its velocity moving the grains and its density steering them, the pile" in text
+    assert "steered towards ridge" not in text and "crest is lifted" not in text
     steered = load_config(
         {
             **SMALL_SWEEP,
             "reduced": {
                 "dynamics_models": ["replay", "ridge"],
                 "density_models": ["ridge"],
+                "crest_models": ["ridge"],
             },
         }
     )
     text = build_report(steered, results, tmp_path / "steered.html").read_text()
     assert "density steering" not in text and "steered towards ridge&#x27;s density" in text
+    assert "moving the grains: its errors" in text and "crest is lifted over" in text
 
 
 def test_animations_the_page_no_longer_shows_are_removed(tmp_path):

@@ -9,6 +9,7 @@ LOOP_FIELDS = (
     "projection",
     "advect_margin",
     "crest_bins",
+    "crest_models",
     "rest_speed",
     "support_angle",
     "divergence_overlap",

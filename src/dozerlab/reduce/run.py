@@ -96,7 +96,7 @@ def reduce_run(
     bed, traj, dt = load_inputs(bed_path, trajectory_path, config)
     every = int(config["sampling"]["every"])
     grid = SamplingGrid.from_config(config)
-    settings = ReducedSettings.from_config(config)
+    settings = ReducedSettings.from_config(config).for_model(field_model.name)
     rows = traj.steps // every
     hist, horizon = int(field_model.history), int(field_model.horizon)
     warmup = max(hist, 1)

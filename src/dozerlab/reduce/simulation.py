@@ -19,7 +19,8 @@ with the blade tip at p_k:
    the same surface, BENCHMARKS.md); a grain above the volume keeps the top bins'
    horizontal velocity and falls until the grains below hold it up, but within
    ``reduced.crest_bins`` bins of the volume's top it also rises with them (the pile's crest,
-   which tips over the blade's top); a grain outside that
+   which tips over the blade's top; for the models named in ``reduced.crest_models``, which
+   :meth:`ReducedSettings.for_model` resolves); a grain outside that
    region that is moving flies ballistically under gravity — a grain the field carried out of
    the region, or one in flight, moves until it has landed, one only nudged by the projection
    until it is slower than ``reduced.rest_speed``; one at rest stays frozen. For a model named
@@ -68,7 +69,7 @@ from __future__ import annotations
 import logging
 import time as wallclock
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -111,7 +112,11 @@ class ReducedSettings:
     tolerance: float = 0.02
     overlap_limit: float = 0.1
     advect_margin: float = 2.0
-    crest_bins: float = 0.0
+    #: bins over the volume's top within which the top bins' lift carries a grain (the state
+    #: applies it as given; :meth:`for_model` sets it to 0 for a model not in crest_models)
+    crest_bins: float = 0.5
+    #: the evolution models (by name) whose loops lift the pile's crest (crest_bins)
+    crest_models: tuple[str, ...] = ("replay",)
     rest_speed: float = 0.05
     support_angle: float = 45.0
     divergence_overlap: float = 0.5
@@ -139,6 +144,7 @@ class ReducedSettings:
             overlap_limit=float(p["overlap_limit"]),
             advect_margin=float(r["advect_margin"]),
             crest_bins=float(r["crest_bins"]),
+            crest_models=tuple(str(m) for m in r["crest_models"]),
             rest_speed=float(r["rest_speed"]),
             support_angle=float(r["support_angle"]),
             divergence_overlap=float(r["divergence_overlap"]),
@@ -147,6 +153,11 @@ class ReducedSettings:
             density_models=tuple(str(m) for m in r["density_models"]),
             density_gain=float(r["density_gain"]),
         )
+
+    def for_model(self, name: str) -> ReducedSettings:
+        """These settings for the loop of field model ``name``: without the crest
+        (``crest_bins`` 0) unless ``name`` is in ``crest_models``."""
+        return self if name in self.crest_models else replace(self, crest_bins=0.0)
 
 
 @dataclass

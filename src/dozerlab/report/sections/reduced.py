@@ -381,21 +381,24 @@ def render(ctx: Context) -> str | None:
         parts.append(f"<h3>{html.esc(model)}</h3>")
         parts.append(html.paragraph(_model_verdict(model, doc)))
         steered = model in reduced["density_models"] and reduced["density_gain"] > 0
+        crest = model in reduced["crest_models"] and reduced["crest_bins"] > 0
         if model == REPLAY:
             parts.append(
                 html.paragraph(
-                    "replay feeds the loop NDEM's own fields"
-                    + (
-                        ", its velocity moving the grains and its density steering them"
-                        if steered
-                        else ""
-                    )
+                    "replay feeds the loop NDEM's own fields, its velocity moving the grains"
+                    + (" and its density steering them" if steered else "")
+                    + (", the pile's crest lifted over the blade's top" if crest else "")
                     + ": its errors are the loop's (advection, projection, what the fields cannot "
                     "carry) alone."
                 )
             )
-        elif steered:
-            parts.append(html.paragraph(f"The grains are steered towards {model}'s density too."))
+        else:
+            if steered:
+                parts.append(
+                    html.paragraph(f"The grains are steered towards {model}'s density too.")
+                )
+            if crest:
+                parts.append(html.paragraph("The pile's crest is lifted over the blade's top too."))
         forces = sorted({str(p.get("force_model")) for p in doc["points"]})
         parts.append(
             html.paragraph(
