@@ -233,6 +233,15 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert len(all_runs) == 1 + len(children)
     for child in children:
         assert child.info.status == "FINISHED" and child.data.metrics, child.data.tags["rule"]
+    # each reduce run says what its loop ran with: the crest is replay's; the quick sweep
+    # steers no loop (density_gain 0)
+    reduce_runs = [r for r in children if r.data.tags["rule"].startswith("reduce")]
+    assert {r.data.tags["model"] for r in reduce_runs} == set(REDUCED)
+    assert CFG["reduced"]["density_gain"] == 0
+    for r in reduce_runs:
+        replay = r.data.tags["model"] == "replay"
+        assert float(r.data.tags["crest_bins"]) == (CFG["reduced"]["crest_bins"] if replay else 0)
+        assert r.data.tags["density_steered"] == "False"
     sims = {
         (r.data.tags["scenario"], float(r.data.tags["speed"]), float(r.data.tags["depth"]))
         for r in children

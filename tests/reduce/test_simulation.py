@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -333,3 +335,13 @@ def test_a_step_projected_again_sweeps_without_over_relaxation(monkeypatch):
     state = _state(x, np.zeros_like(x), grid, settings)
     state.step(field, np.full(grid.bins, 1500.0), np.array([0.0, 0.0, 0.1]), 0.01)
     assert asked == [1.8, 1.0]
+
+
+def test_a_loops_settings_lift_the_crest_and_steer_only_for_the_models_named():
+    settings = ReducedSettings(
+        crest_bins=0.5, crest_models=("replay",), density_models=("ridge",), density_gain=0.5
+    )
+    assert settings.for_model("replay").crest_bins == 0.5
+    assert settings.for_model("ridge") == dataclasses.replace(settings, crest_bins=0.0)
+    assert settings.steers("ridge") and not settings.steers("replay")
+    assert not dataclasses.replace(settings, density_gain=0.0).steers("ridge")

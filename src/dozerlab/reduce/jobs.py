@@ -180,16 +180,22 @@ def _tracked_reduce(
     """:func:`dozerlab.reduce.run.reduce_run` of loaded models as an MLflow run of ``rule``."""
     from dozerlab import tracking
     from dozerlab.reduce.run import reduce_run
+    from dozerlab.reduce.simulation import ReducedSettings
 
     scenario, speed, depth = target.scenario, target.speed, target.depth
     point = P.point_name(speed, depth) if speed is not None and depth is not None else None
     name = tracking.run_name("reduce", field_model.name, scenario, point)
+    # the config's reduced section names the loops its crest and steering apply to; the tags
+    # say what this loop ran with
+    loop = ReducedSettings.from_config(config).for_model(field_model.name)
     tags = {
         "scenario": scenario,
         "speed": speed,
         "depth": depth,
         "model": field_model.name,
         "force_model": forces.name,
+        "crest_bins": loop.crest_bins,
+        "density_steered": loop.steers(field_model.name),
     }
     with tracking.tracked_run(
         name,

@@ -132,7 +132,7 @@ def reduce_run(
     predicted = field_model.name in settings.predicted_history
     # The evolution model's density of each row, which the grains are steered towards
     # (reduced.density_models): the warm-up's rows are NDEM's, as sampled.
-    steered = field_model.name in settings.density_models and settings.density_gain > 0.0
+    steered = settings.steers(field_model.name)
     field_rho = np.zeros_like(rho)
     solid = float(config["material"]["density"])
     x, y, z = grid.centres()

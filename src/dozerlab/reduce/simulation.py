@@ -159,6 +159,11 @@ class ReducedSettings:
         (``crest_bins`` 0) unless ``name`` is in ``crest_models``."""
         return self if name in self.crest_models else replace(self, crest_bins=0.0)
 
+    def steers(self, name: str) -> bool:
+        """Whether the loop of field model ``name`` steers its grains towards the model's
+        density (``density_models``, at a gain above 0)."""
+        return name in self.density_models and self.density_gain > 0.0
+
 
 @dataclass
 class PhaseTimes:
