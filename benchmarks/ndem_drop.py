@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> None:
         p = world.params
         print(
             f"\n[{spec or 'defaults'}] {world.n_spheres} grains, dt {p.dt} s, {p.iterations} "
-            f"sweeps at most, tolerance {p.tolerance} m/s, relinearize {p.relinearize} past "
+            f"sweeps at most, tolerance {p.tolerance} m/s ({p.rest_tolerance} m/s while no body moves), relinearize {p.relinearize} past "
             f"{p.relinearize_above} r"
         )
         seconds, worst, sweeps, done, line = 0.0, 0.0, 0, 0, []

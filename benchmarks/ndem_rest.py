@@ -12,13 +12,14 @@ Each variant is ``NAME:KEY=VALUE,...`` (dotted config keys, values as YAML) over
 validated like it. Each bed goes into a world as the workflow's runs build it
 (``scenarios.build.make_world``: walls, ground, the bed's velocities, its still grains counted
 as rested), with no blade, and steps ``--seconds`` of simulated time under each variant in
-turn. Prints per bed how many grains spin faster than ``--spin-speed`` at their surface
-(|ω|·r) in the bed file, then per variant: wall seconds per simulated second (the first step,
-which loads numba's cached kernels, not counted), the grains still spinning that fast at the
-end, the grains moved more than 1 mm and the median displacement, the change of the mean and
-top surface (the grains' tops per 5 cm cell), and with the active zone the grains awake after
-the first step, at the end and on average. NDEM is deterministic for a given thread count, so
-the counts repeat; the seconds depend on the machine and its load.
+turn. Prints per bed how many grains spin faster than ``--spin-speed`` at their surface (|ω|·r) in
+the bed file, then per variant: wall seconds per simulated second (the first step, which loads
+numba's cached kernels, not counted), the solver's sweeps a step (over the run and its second
+half, once the bed's multipliers are warm), the fastest grain at the end, the grains still
+spinning that fast at the end, the grains moved more than 1 mm and the median displacement, the
+change of the mean and top surface (the grains' tops per 5 cm cell), and with the active zone
+the grains awake after the first step, at the end and on average. NDEM is deterministic for a
+given thread count, so the counts repeat; the seconds depend on the machine and its load.
 """
 
 from __future__ import annotations
@@ -53,17 +54,21 @@ def rest(bed: Bed, config: dict, seconds: float, spin_speed: float) -> str:
     x0 = world.positions.copy()
     mean0, top0 = surface(x0, bed.radii)
     awake = []
+    sweeps = []
     for i in range(steps):
         if i == 1:
             t0 = time.perf_counter()
-        world.step()
+        sweeps.append(world.step().iterations)
         awake.append(int(world.state.awake.sum()))
     wall = (time.perf_counter() - t0) / ((steps - 1) * world.dt)
     spin = np.linalg.norm(world.angular_velocities, axis=1) * bed.radii
     shift = np.linalg.norm(world.positions - x0, axis=1)
     mean, top = surface(world.positions, bed.radii)
+    fastest = float(np.linalg.norm(world.velocities, axis=1).max())
     line = (
-        f"{wall:6.2f} s per simulated s; spinning {int((spin > spin_speed).sum()):3d} "
+        f"{wall:6.2f} s per simulated s, {np.mean(sweeps):4.1f} sweeps a step "
+        f"({np.mean(sweeps[steps // 2 :]):4.1f} in the second half); fastest grain at the end "
+        f"{fastest:.3f} m/s; spinning {int((spin > spin_speed).sum()):3d} "
         f"(fastest {spin.max():.3f} m/s); moved > 1 mm {int((shift > 1e-3).sum()):3d}, median "
         f"{1e6 * float(np.median(shift)):5.1f} µm; surface {1e3 * (mean - mean0):+.2f} / "
         f"{1e3 * (top - top0):+.2f} mm"

@@ -344,7 +344,8 @@ def main(argv: list[str] | None = None) -> None:
         f"{'' if args.jitter_seed is None else f' jittered 1 µm (seed {args.jitter_seed})'}: "
         f"{bed.count} grains, {bed.length} x {bed.width} m; NDEM dt {dt} s, "
         f"{config['solver']['iterations']} sweeps at most, tolerance "
-        f"{config['solver']['tolerance']} m/s, relinearize {config['solver']['relinearize']}; LAMMPS dt {args.lammps_dt} s, restitution "
+        f"{config['solver']['tolerance']} m/s ({config['solver']['rest_tolerance']} m/s while no "
+        f"body moves), relinearize {config['solver']['relinearize']}; LAMMPS dt {args.lammps_dt} s, restitution "
         f"{args.restitution}; one thread each. Overlaps over the smaller radius; heights mean / "
         f"largest of the surface over {CELL} m cells: {surface(x0, r, box)[0]:.4f} / "
         f"{surface(x0, r, box)[1]:.4f} m before",

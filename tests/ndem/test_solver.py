@@ -46,6 +46,7 @@ def _converged(scene: str, method: str, relaxation: float) -> World:
     w = SCENES[scene]()
     w.step(5)  # warm contacts
     w.method, w.relaxation, w.iterations, w.tolerance = method, relaxation, 50000, 1e-9
+    w.rest_tolerance = 0.0  # the scenes without the blade are at rest
     w.relinearize = 0  # one solve: the sweeps it took are compared
     w.step()
     return w
@@ -122,6 +123,8 @@ def test_method_and_tolerance_are_validated():
         World(method="cg")
     with pytest.raises(ValueError, match="tolerance"):
         World(tolerance=-1.0)
+    with pytest.raises(ValueError, match="rest_tolerance"):
+        World(rest_tolerance=-1.0)
     with pytest.raises(ValueError, match="relaxation"):
         World(relaxation=2.0)
     w = World()
@@ -193,15 +196,43 @@ def test_without_relinearising_the_dropped_lattice_sinks_into_itself():
     assert worst > 0.2  # touching grains taken unloaded sink by a step's travel
 
 
-def test_a_tolerance_stop_leaves_a_sphere_on_an_incline_in_place():
+@pytest.mark.parametrize(
+    "stop", [{"tolerance": 1e-4, "rest_tolerance": 0.0}, {}], ids=["tolerance", "rest_tolerance"]
+)
+def test_a_tolerance_stop_leaves_a_sphere_on_an_incline_in_place(stop):
     # The stop counts the friction and rolling rows: on the normal row alone it crept (1e-4 m/s).
     theta = np.deg2rad(10.0)  # below the rolling threshold μ_r = 0.3
     n = np.array([np.sin(theta), 0.0, np.cos(theta)])
-    w = World(tolerance=1e-4, iterations=500)
+    w = World(iterations=500, **stop)  # {}: the default rest tolerance, no body moving
     w.add_plane(normal=n, friction=0.8)
     w.add_spheres([R * n], radius=R, rolling_resistance=0.3)
+    down = np.array([np.cos(theta), 0.0, -np.sin(theta)])
     w.step(20)
     start = w.positions[0].copy()
-    stats = w.step(100)
-    assert stats.iterations < 500  # stopped by the tolerance
-    assert np.abs(w.positions[0] - start).max() < 1e-6
+    for _ in range(3):
+        stats = w.step(100)
+        assert stats.iterations < 500  # stopped by the tolerance
+        moved = w.positions[0] - start
+        assert abs(moved @ down) < 1e-6  # over 3 s: no creep down the slope
+        assert abs(moved @ n) < 5e-6  # the contact breathes, by under 6 % of its 87 µm overlap
+
+
+def test_the_rest_tolerance_stops_the_solve_only_while_no_body_moves():
+    assert World().rest_tolerance == 3e-4  # the schema's default
+    w = _pile()
+    blade = w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True)
+    w.iterations = 200
+    w.step(40)
+    assert w.step().iterations < 200  # a bed left to itself: stopped at 3e-4 m/s
+    w.set_velocity(blade, (0.5, 0.0, 0.0))
+    assert w.step().iterations == 200  # the blade drives it: every sweep
+    # and a push is solved bit for bit as without the rest tolerance
+    runs = []
+    for rest in (3e-4, 0.0):
+        w = _pile()
+        w.rest_tolerance = rest
+        w.set_velocity(w.add_box((0.05, 0.0, 0.2), (0.02, 0.3, 0.2), kinematic=True), (0.5, 0, 0))
+        w.step(30)
+        runs.append((w.positions, w.velocities, w.force_on(len(w.bodies) - 1)))
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a, b)

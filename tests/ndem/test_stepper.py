@@ -1,4 +1,8 @@
-"""Physics checks against analytic answers, on scenes of a handful of spheres."""
+"""Physics checks against analytic answers, on scenes of a handful of spheres.
+
+Scenes where no body moves are solved to solver.iterations (``rest_tolerance=0``): the answers
+checked are the converged solve's; what the rest tolerance leaves is tested in test_solver.py.
+"""
 
 import numba
 import numpy as np
@@ -17,7 +21,7 @@ def _hertz_overlap(weight: float, youngs: float, nu: float, rstar: float) -> flo
 
 @pytest.mark.parametrize("youngs", [1.0e8, 1.0e6])
 def test_resting_sphere_overlap_matches_hertz(youngs):
-    w = World(youngs_modulus=youngs)
+    w = World(youngs_modulus=youngs, rest_tolerance=0.0)
     w.add_plane()
     w.add_spheres([[0.0, 0.0, R]], radius=R)
     w.step(100)
@@ -28,7 +32,7 @@ def test_resting_sphere_overlap_matches_hertz(youngs):
 
 
 def test_stiff_contact_has_no_overlap():
-    w = World(youngs_modulus=0.0)
+    w = World(youngs_modulus=0.0, rest_tolerance=0.0)
     w.add_plane()
     w.add_spheres([[0.0, 0.0, R + 0.02]], radius=R)
     w.step(100)
@@ -39,7 +43,7 @@ def test_stiff_contact_has_no_overlap():
 def _incline(theta: float, rolling: float, friction: float = 0.8) -> tuple[World, np.ndarray]:
     """A sphere touching a plane tilted by theta about y; returns the world and downhill unit."""
     n = np.array([np.sin(theta), 0.0, np.cos(theta)])
-    w = World()
+    w = World(rest_tolerance=0.0)
     w.add_plane(normal=n, friction=friction)
     w.add_spheres([R * n], radius=R, rolling_resistance=rolling)
     return w, np.array([np.cos(theta), 0.0, -np.sin(theta)])
@@ -74,7 +78,7 @@ def test_spin_about_the_normal_is_free_unless_resisted_and_then_stops_at_the_bou
     """A sphere resting on the ground, set spinning about the vertical: no rolling row touches
     that spin, so without spinning resistance it keeps it; with μ_s the torque is R·μ_s·m·g
     (R* = R against a body), so ω falls at 2.5·μ_s·g / R (I = 0.4 m R²) and stops at zero."""
-    w = World(spinning_resistance=spinning)
+    w = World(spinning_resistance=spinning, rest_tolerance=0.0)
     w.add_plane()
     w.add_spheres([[0.0, 0.0, R]], radius=R)
     w.step(20)  # sink to the Hertz overlap
@@ -100,7 +104,7 @@ def test_spin_between_two_grains_is_resisted_with_their_reduced_radius():
     is R*·μ_s·m·g with R* = R/2, half the ground's, so it slows at 1.25·μ_s·g / R, and the
     sphere below, held by the ground's larger limit, does not turn."""
     spinning = 0.2
-    w = World(spinning_resistance=spinning)
+    w = World(spinning_resistance=spinning, rest_tolerance=0.0)
     w.add_plane()
     w.add_spheres([[0.0, 0.0, R], [0.0, 0.0, 3 * R]], radius=R)
     w.step(20)

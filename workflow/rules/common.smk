@@ -96,8 +96,9 @@ def config_json(*sections, scenario=None, fields=None):
 
 
 # The solver fields a bed or a trajectory reads: of the active zone only when a grain sleeps
-# and wakes (a bed's pour, bed.active_zone), so switching the blade's zone reruns no bed.
-BED_SOLVER_FIELDS = [k for k in config["solver"] if k != "active_zone"] + [
+# and wakes (a bed's pour, bed.active_zone), so switching the blade's zone reruns no bed; not
+# rest_tolerance, which the pour leaves out.
+BED_SOLVER_FIELDS = [k for k in config["solver"] if k not in ("active_zone", "rest_tolerance")] + [
     "active_zone.rest_speed",
     "active_zone.rest_time",
     "active_zone.wake_load",

@@ -28,6 +28,7 @@ SOLVER_KEYS = (
     "method",
     "relaxation",
     "tolerance",
+    "rest_tolerance",
     "relinearize",
     "relinearize_above",
 )
@@ -77,7 +78,9 @@ class Parameters:
     ``pgs`` or ``nncg`` (:data:`METHODS`); relaxation: ω scaling every row update, in (0, 2)
     (> 1: over-relaxation, projected SOR); tolerance: the RMS velocity change in m/s of a sweep's
     updates at the contact points below which a step's solve stops early (0: always run
-    ``iterations``); relinearize: rounds (≥ 0) in which the Hertz rows whose pairs sink past the
+    ``iterations``); rest_tolerance: in a step in which no body moves, the solve also stops
+    after a sweep that changed the velocity at every contact point by at most this, m/s (0:
+    never); relinearize: rounds (≥ 0) in which the Hertz rows whose pairs sink past the
     overlap their compliance was taken at are taken again there and the solve continues, in the
     steps where some pair would end deeper than relinearize_above of its smaller radius (≥ 0);
     gravity (3,) m/s²; damping_steps: SPOOK damping time τ in steps (> 0); youngs_modulus E in Pa (0: stiff contacts);
@@ -98,6 +101,7 @@ class Parameters:
     method: str = field(default_factory=_schema("method"))
     relaxation: float = field(default_factory=_schema("relaxation"))
     tolerance: float = field(default_factory=_schema("tolerance"))
+    rest_tolerance: float = field(default_factory=_schema("rest_tolerance"))
     relinearize: int = field(default_factory=_schema("relinearize"))
     relinearize_above: float = field(default_factory=_schema("relinearize_above"))
     damping_steps: float = field(default_factory=_schema("damping_steps"))
@@ -145,6 +149,7 @@ class Parameters:
         put("iterations", int(self.iterations))
         put("relaxation", float(self.relaxation))
         put("tolerance", nonnegative("tolerance", self.tolerance))
+        put("rest_tolerance", nonnegative("rest_tolerance", self.rest_tolerance))
         if int(self.relinearize) != self.relinearize or int(self.relinearize) < 0:
             raise ValueError(f"relinearize must be an integer >= 0, got {self.relinearize!r}")
         put("relinearize", int(self.relinearize))

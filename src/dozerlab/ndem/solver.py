@@ -214,10 +214,12 @@ def solve(
     tolerance,
     omega,
     spin=0.0,
+    largest=0.0,
 ):
     """Sweep the contacts until a sweep changed the velocities at the contact points by less
-    than ``tolerance`` (m/s, RMS over the contacts of every row's change) or ``iterations``
-    sweeps ran.
+    than ``tolerance`` (m/s, RMS over the contacts of every row's change), or by at most
+    ``largest`` at every contact (m/s, each contact's change over its rows, as for the RMS), or
+    ``iterations`` sweeps ran (a stop at 0 is off).
 
     Each update is scaled by ``omega`` (projected SOR when > 1). ``spin`` is the spinning
     resistance μ_s (0: spin about the normal is free, the rolling impulse stays tangential; the
@@ -250,6 +252,7 @@ def solve(
     res_part = np.zeros(n_slabs)
     step_part = np.zeros(n_slabs)
     du_part = np.zeros(n_slabs)
+    top_part = np.zeros(n_slabs)
     res = 0.0
     step_norm_old = 0.0
     threshold = tolerance * tolerance * max(nc, 1)
@@ -266,6 +269,7 @@ def solve(
                 r = 0.0
                 d2 = 0.0
                 du = 0.0
+                top = 0.0
                 for g in (s, n_slabs + s):
                     if g == 2 * n_slabs - 1:
                         continue  # the last slab has no boundary group
@@ -276,6 +280,7 @@ def solve(
                         rk, uk = _solve(k, ci, cj, cd, lam, v, w, invm, invI, omega, spin)
                         r += rk
                         du += uk
+                        top = max(top, uk)
                         if nncg:
                             for a in range(7):
                                 d = lam[k, a] - prev[k, a]
@@ -283,15 +288,20 @@ def solve(
                 res_part[s] = r
                 step_part[s] = d2
                 du_part[s] = du
+                top_part[s] = top
         done += 1
         res = 0.0
         step_norm = 0.0
         change = 0.0
+        worst = 0.0
         for t in range(n_slabs):
             res += res_part[t]
             step_norm += step_part[t]
             change += du_part[t]
-        if tolerance > 0.0 and change <= threshold:
+            worst = max(worst, top_part[t])
+        if (tolerance > 0.0 and change <= threshold) or (
+            largest > 0.0 and worst <= largest * largest
+        ):
             break
         if not nncg or done == iterations:
             continue

@@ -70,6 +70,7 @@ class World:
     method = _parameter("method")
     relaxation = _parameter("relaxation")
     tolerance = _parameter("tolerance")
+    rest_tolerance = _parameter("rest_tolerance")
     relinearize = _parameter("relinearize")
     relinearize_above = _parameter("relinearize_above")
     damping_steps = _parameter("damping_steps")
