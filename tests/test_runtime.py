@@ -24,6 +24,7 @@ from dozerlab.runtime import (
     die_with_workflow,
     freeze_heap,
     job_outputs,
+    keep_freed_memory,
     marked_folder,
     marked_png,
     png_metadata,
@@ -43,6 +44,34 @@ def test_freeze_heap_takes_the_live_objects_out_of_the_collectors_view():
         assert not any(id(o) in ids for o in gc.get_objects())
     finally:
         gc.unfreeze()
+
+
+_REFAULTS = (
+    "import resource, sys, numpy as np\n"
+    "from dozerlab.runtime import keep_freed_memory\n"
+    "kept = sys.argv[1] == 'kept' and keep_freed_memory()\n"
+    "for i in range(3):\n"
+    "    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+    "    a = np.ones(64 << 17)  # 64 MB, every page touched\n"
+    "    del a\n"
+    "print(kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)\n"
+)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_keep_freed_memory_lets_a_freed_block_serve_the_next_one_without_faulting_it_in():
+    def faults(mode: str) -> tuple[str, int]:
+        out = subprocess.run(
+            [sys.executable, "-c", _REFAULTS, mode], check=True, capture_output=True, text=True
+        ).stdout.split()
+        return out[0], int(out[1])
+
+    # mapped afresh: at least a fault per page, a 2 MB page where the kernel makes huge pages
+    kept, refaults = faults("default")
+    assert kept == "False" and refaults >= (64 << 20) // (2 << 20)
+    kept, refaults = faults("kept")
+    assert kept == "True" and refaults < 16  # the freed block again, its pages in
+    assert keep_freed_memory() is True  # and again in this process: the same settings
 
 
 def test_set_threads_limits_numba_torch_and_blas_in_a_fresh_process():

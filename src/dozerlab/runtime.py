@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import ctypes
 import errno
 import gc
 import glob
@@ -72,6 +73,33 @@ def set_threads(n: int) -> int:
     if torch is not None:
         torch.set_num_threads(n)
     return n
+
+
+#: glibc's ``mallopt`` parameters (malloc.h) and the size up to which freed memory is kept.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+KEPT_BYTES = 1 << 30
+
+
+def keep_freed_memory() -> bool:
+    """Have glibc's malloc serve blocks below :data:`KEPT_BYTES` from the heap and keep what is
+    freed for the next allocation, instead of mapping each large block afresh and returning it.
+
+    A training step frees and allocates the same large blocks every batch (the MLP's 60 MB
+    first-layer gradient); mapped afresh, each of its pages faults in zeroed again. With this
+    the MLP trained in 0.77 of the time and the ridge in 0.79, the CNN and the U-Nets in about
+    the same, to the same weights bit for bit (BENCHMARKS.md, "Freed memory kept for the next
+    batch"). The process keeps up to its peak use (the ridge's job 3.0 GB, was 2.6).
+    Returns whether it took effect (glibc only; elsewhere nothing changes)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return all(
+        mallopt(option, KEPT_BYTES) == 1 for option in (_M_MMAP_THRESHOLD, _M_TRIM_THRESHOLD)
+    )
 
 
 def freeze_heap() -> None:
