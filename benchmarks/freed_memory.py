@@ -1,6 +1,6 @@
 """The force and evolution models trained with glibc's malloc as it comes and with the freed
-memory kept (``dozerlab.runtime.keep_freed_memory``, which every ``python -m dozerlab`` job
-calls), side by side in fresh processes, one thread each.
+memory kept (``dozerlab.runtime.keep_freed_memory``, which the training jobs call), side by
+side in fresh processes, one thread each.
 
     python benchmarks/freed_memory.py --results results --models mlp cnn unet --epochs 2
     python benchmarks/freed_memory.py --results results --dynamics unet --epochs 2

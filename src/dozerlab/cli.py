@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from dozerlab import __version__
 from dozerlab.cliargs import add_command
-from dozerlab.runtime import DozerlabError, die_with_workflow, freeze_heap, keep_freed_memory
+from dozerlab.runtime import DozerlabError, die_with_workflow, freeze_heap
 from dozerlab.tracking import STATUSES
 
 # The layers' command modules; each defines ``register(subparsers)`` and adds its own commands.
@@ -185,7 +185,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
     )
     die_with_workflow()  # a workflow job stops when its snakemake is killed
-    keep_freed_memory()
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, DozerlabError) as exc:

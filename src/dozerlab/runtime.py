@@ -84,12 +84,14 @@ def keep_freed_memory() -> bool:
     """Have glibc's malloc serve blocks below :data:`KEPT_BYTES` from the heap and keep what is
     freed for the next allocation, instead of mapping each large block afresh and returning it.
 
-    A training step frees and allocates the same large blocks every batch (the MLP's 60 MB
-    first-layer gradient); mapped afresh, each of its pages faults in zeroed again. With this
-    the MLP trained in 0.77 of the time and the ridge in 0.79, the CNN and the U-Nets in about
-    the same, to the same weights bit for bit (BENCHMARKS.md, "Freed memory kept for the next
-    batch"). The process keeps up to its peak use (the ridge's job 3.0 GB, was 2.6).
-    Returns whether it took effect (glibc only; elsewhere nothing changes)."""
+    The training jobs call it (:func:`dozerlab.learn.jobs.train_job`). A training step frees and
+    allocates the same large blocks every batch (the MLP's 60 MB first-layer gradient); mapped
+    afresh, each of its pages faults in zeroed again. With this the MLP trained in 0.77 of the
+    time and the ridge in 0.79, the CNN and the U-Nets in about the same, to the same weights
+    bit for bit; the process keeps up to its peak use (the ridge's job 3.0 GB, was 2.6). The
+    reduced loop's many small blocks ran 13 % slower on the heap, so the other jobs keep
+    glibc's defaults (BENCHMARKS.md, "Freed memory kept for the next batch"). Returns whether
+    it took effect (glibc only; elsewhere nothing changes)."""
     if not sys.platform.startswith("linux"):
         return False
     try:

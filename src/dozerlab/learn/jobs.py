@@ -26,6 +26,7 @@ from dozerlab.runtime import (
     atomic_output,
     job_outputs,
     json_with,
+    keep_freed_memory,
     marked_folder,
 )
 from dozerlab.tracking import JobRun
@@ -145,6 +146,7 @@ def train_job(
     """
     with job_outputs(("--out", out, family.output)):  # a wrong --out fails before training
         device_for(device)  # and a device this machine lacks
+        keep_freed_memory()  # the batches' large blocks reused, not faulted in afresh
         return _train(kind, train, config, out, device, progress, family, loop_fields)
 
 
