@@ -3,7 +3,7 @@ beds of 1x, 2x and 4x the default area, same blade and path, in one run.
 
     python benchmarks/reduce_scaling.py --results results --scenario hill --speed 0.875 \\
         --depth 0.045 [--config config/config.yaml] [--steps 60] [--tiles 1 2 4] [--threads 1] \\
-        [--plot docs/images/reduce-scaling.png]
+        [--dynamics replay ridge] [--plot docs/images/reduce-scaling.png]
 
 The larger beds are the point's settled bed repeated across its width (copies side by side, each
 shifted by the bed's width, so the terrain under the blade's path is the same); a seam is not
@@ -11,11 +11,13 @@ settled (a wall's contacts become the next copy's grains, and NDEM's first step 
 along it moving; the reduced loop too, when its warm-up is NDEM's), so the larger beds overstate
 how NDEM grows. The blade runs the first ``--steps`` steps of the point's trajectory on each. Per bed,
 side by side on one machine and thread count: the full NDEM solve, NDEM with
-``solver.active_zone.enabled``, and the reduced loop replaying the full solve's own fields
-(``replay``: the loop's cost with perfect fields, the evolution model's inference apart). Printed
-per bed: grains, wall time per simulated second of each (the reduced loop's with and without its
+``solver.active_zone.enabled``, and the reduced loop of each ``--dynamics`` model: ``replay``
+(the full solve's own fields: the loop's cost with perfect fields, no inference) and the
+workflow's trained evolution models under ``--results`` (``results/dynamics/{model}``, with the
+force model rule ``reduce`` gives it: what a user runs instead of NDEM). Printed per bed and
+loop: grains, wall time per simulated second of each (the reduced loop's with and without its
 warm-up rows: NDEM's steps when the blade reaches a grain in them, else the bed sampled as it
-lies) and the speed-ups; the figure plots the wall time per simulated second
+lies) and the speed-ups over both NDEMs; the figure plots the wall time per simulated second
 against the bed's area. Not a test: the times depend on the machine and its load.
 """
 
@@ -71,6 +73,12 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=60, help="solver steps of the path to run")
     ap.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument(
+        "--dynamics",
+        nargs="+",
+        default=["replay", "ridge"],
+        help="the reduced loops to time: replay and/or trained evolution models under --results",
+    )
     ap.add_argument("--plot", default="docs/images/reduce-scaling.png")
     args = ap.parse_args()
     os.environ["DOZERLAB_MLFLOW"] = "0"
@@ -105,14 +113,23 @@ def main() -> None:
         whole.dt,
     )
     sim_s = k * traj.dt
-    force = ForcePredictor(P.model_path(res, config["reduced"]["force_model"]))
     labels = {"scenario": point.scenario, "speed": point.speed, "depth": point.depth}
+    grid = tuple(config["sampling"]["bins"])
+    forces = {
+        name: ForcePredictor(P.reduce_force_model_path(res, config["reduced"], name))
+        for name in args.dynamics
+    }
+    learned = {
+        name: load_field_model(P.dynamics_model_path(res, name), grid)
+        for name in args.dynamics
+        if name != "replay"
+    }
     print(
         f"{point.scenario} {point.name}: first {k} steps ({sim_s:.2f} s simulated), "
         f"{threads} thread(s); wall time per simulated second"
     )
     print(
-        f"{'area':>5} {'grains':>7} {'NDEM full':>9} {'NDEM zone':>9} {'reduced':>8} "
+        f"{'area':>5} {'grains':>7} {'NDEM full':>9} {'NDEM zone':>9} {'loop':>8} {'reduced':>8} "
         f"{'red. steps':>10} {'full/red':>8} {'zone/red':>8}  reduced step: ms by phase"
     )
     rows = []
@@ -127,43 +144,51 @@ def main() -> None:
             store = t / f"full{n}.zarr"
             full = ndem(bed_path, traj_path, full_cfg, store, labels)
             zone = ndem(bed_path, traj_path, zone_cfg, t / f"zone{n}.zarr", labels)
-            fm = load_field_model("replay", tuple(config["sampling"]["bins"]), store)
-            r = reduce_run(
-                bed_path,
-                traj_path,
-                full_cfg,
-                fm,
-                force,
-                t / f"reduced{n}.zarr",
-                t / f"reduced{n}.npz",
-                **labels,
-            )
-            steps_s = r["wall_time_s"] - r["warmup_s"]
-            every = int(config["sampling"]["every"])
-            row = {
+            row: dict[str, Any] = {
                 "tiles": n,
                 "grains": b.count,
                 "full": full / sim_s,
                 "zone": zone / sim_s,
-                "reduced": r["wall_time_s"] / sim_s,
-                # the reduced steps alone, per simulated second of them
-                "reduced_steps": steps_s / (r["reduced_rows"] * every * traj.dt),
             }
+            for name in args.dynamics:
+                fm = load_field_model("replay", grid, store) if name == "replay" else learned[name]
+                r = reduce_run(
+                    bed_path,
+                    traj_path,
+                    full_cfg,
+                    fm,
+                    forces[name],
+                    t / f"{name}{n}.zarr",
+                    t / f"{name}{n}.npz",
+                    **labels,
+                )
+                steps_s = r["wall_time_s"] - r["warmup_s"]
+                every = int(config["sampling"]["every"])
+                row[name] = r["wall_time_s"] / sim_s
+                # the reduced steps alone, per simulated second of them
+                row[f"{name}_steps"] = steps_s / (r["reduced_rows"] * every * traj.dt)
+                print(
+                    f"{n:>4}x {row['grains']:>7} {row['full']:9.2f} {row['zone']:9.2f} "
+                    f"{name:>8} {row[name]:8.2f} {row[f'{name}_steps']:10.2f} "
+                    f"{row['full'] / row[name]:7.1f}x {row['zone'] / row[name]:7.1f}x  "
+                    + ", ".join(f"{k[3:]} {v:.1f}" for k, v in r.items() if k.startswith("ms_"))
+                    + f"; grains moved a step {r['active_grains_mean']:.0f}",
+                    flush=True,
+                )
             rows.append(row)
-            print(
-                f"{n:>4}x {row['grains']:>7} {row['full']:9.2f} {row['zone']:9.2f} "
-                f"{row['reduced']:8.2f} {row['reduced_steps']:10.2f} "
-                f"{row['full'] / row['reduced']:7.1f}x {row['zone'] / row['reduced']:7.1f}x  "
-                + ", ".join(f"{k[3:]} {v:.1f}" for k, v in r.items() if k.startswith("ms_"))
-                + f"; grains moved a step {r['active_grains_mean']:.0f}",
-                flush=True,
-            )
-    plot(rows, bed.length * bed.width, Path(args.plot), f"{point.scenario} {point.name}")
+    plot(
+        rows,
+        args.dynamics,
+        bed.length * bed.width,
+        Path(args.plot),
+        f"{point.scenario} {point.speed:g} m/s, {point.depth:g} m deep: {sim_s:.2f} s of the pass",
+    )
     print(f"plot: {args.plot}")
 
 
-def plot(rows: list[dict[str, Any]], area: float, out: Path, title: str) -> None:
-    """Wall time per simulated second (s/s) against the bed's area (m²), one line per solver."""
+def plot(rows: list[dict[str, Any]], loops: list[str], area: float, out: Path, title: str) -> None:
+    """Wall time per simulated second (s/s) against the bed's area (m²), one line per solver
+    and reduced loop (``loops``: the dynamics models), its steps alone dashed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -171,13 +196,18 @@ def plot(rows: list[dict[str, Any]], area: float, out: Path, title: str) -> None
 
     x = [area * r["tiles"] for r in rows]
     fig, ax = plt.subplots(figsize=(5.5, 3.8))
-    for key, label in (
-        ("full", "NDEM, full solve"),
-        ("zone", "NDEM, active zone"),
-        ("reduced", "reduced loop (replay), warm-up included"),
-        ("reduced_steps", "reduced loop, its steps only"),
-    ):
+    for key, label in (("full", "NDEM, full solve"), ("zone", "NDEM, active zone")):
         ax.plot(x, [r[key] for r in rows], "o-", label=label)
+    for name in loops:
+        (line,) = ax.plot(x, [r[name] for r in rows], "s-", label=f"reduced loop ({name})")
+        ax.plot(
+            x,
+            [r[f"{name}_steps"] for r in rows],
+            "s--",
+            color=line.get_color(),
+            alpha=0.6,
+            label=f"reduced loop ({name}), its steps only",
+        )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_xticks(x, [f"{a:g}" for a in x])
