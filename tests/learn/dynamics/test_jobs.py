@@ -19,6 +19,7 @@ CONFIG = json.dumps(
             "rollout_steps": 30,
             "rollout_starts": 2,
             "ridge_z_bands": [1, 3],
+            "ridge_alphas": [1e-3, 0.1, 10.0],
         },
     }
 )

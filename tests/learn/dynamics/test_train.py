@@ -14,7 +14,8 @@ CFG = load_config(
     {
         "mlflow": {"enabled": False},
         "learn": {"validation_block": 5},
-        "dynamics": {"val_rollout": 2, "ridge_z_bands": [1, 3]},
+        # several penalties, so that the ridge's choice among them is tested (the default has one)
+        "dynamics": {"val_rollout": 2, "ridge_z_bands": [1, 3], "ridge_alphas": [1e-3, 0.1, 10.0]},
     }
 )
 
