@@ -1,8 +1,8 @@
 """How cost grows with the terrain: NDEM (full solve and active zone) and the reduced loop on
 beds of 1x, 2x and 4x the default area, same blade and path, in one run.
 
-    python benchmarks/reduce_scaling.py --results results --scenario hill --speed 0.875 \\
-        --depth 0.045 [--config config/config.yaml] [--steps 60] [--tiles 1 2 4] [--threads 1] \\
+    python benchmarks/reduce_scaling.py --results results [--points hill:0.875:0.045 ...] \\
+        [--config config/config.yaml] [--steps 60] [--tiles 1 2 4] [--threads 1] \\
         [--dynamics replay ridge] [--plot docs/images/reduce-scaling.png]
 
 The larger beds are the point's settled bed repeated across its width (copies side by side, each
@@ -18,7 +18,11 @@ force model rule ``reduce`` gives it: what a user runs instead of NDEM). Printed
 loop: grains, wall time per simulated second of each (the reduced loop's with and without its
 warm-up rows: NDEM's steps when the blade reaches a grain in them, else the bed sampled as it
 lies) and the speed-ups over both NDEMs; the figure plots the wall time per simulated second
-against the bed's area. Not a test: the times depend on the machine and its load.
+against the bed's area (the first point's, where ``--tiles`` gives more than one size).
+``--points held-out`` runs the config's held-out points (interpolation, extrapolation and
+transfer) one after the other, and ends with a table of each point's speed-ups: the loops beside
+both NDEMs on the points the workflow compares. Not a test: the times depend on the machine and
+its load.
 """
 
 from __future__ import annotations
@@ -28,9 +32,12 @@ import copy
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from dozerlab.sweep import SweepPoint
 
 
 def tiled(bed: Any, tiles: int) -> Any:
@@ -67,9 +74,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", default="results", help="a workflow's results folder")
     ap.add_argument("--config", default="config/config.yaml")
-    ap.add_argument("--scenario", default="hill")
-    ap.add_argument("--speed", type=float, default=0.875)
-    ap.add_argument("--depth", type=float, default=0.045)
+    ap.add_argument(
+        "--points",
+        nargs="+",
+        default=["hill:0.875:0.045"],
+        help="scenario:speed:depth of each point, or held-out (the config's held-out points)",
+    )
     ap.add_argument("--steps", type=int, default=60, help="solver steps of the path to run")
     ap.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--threads", type=int, default=1)
@@ -86,19 +96,76 @@ def main() -> None:
     from dozerlab import sweep as P
     from dozerlab.config import load_config
     from dozerlab.reduce.models import ForcePredictor, load_field_model
-    from dozerlab.reduce.run import reduce_run
     from dozerlab.runtime import set_threads
+    from dozerlab.scenarios.bed import Bed
+
+    args.threads = set_threads(args.threads)
+    config = load_config(args.config)
+    if args.points == ["held-out"]:
+        every = P.sweep_points(config)
+        points = [p for role in P.HELD_OUT_ROLES for p in P.by_role(every, role)]
+    else:
+        points = [
+            P.SweepPoint(s, float(v), float(d))
+            for s, v, d in (spec.split(":") for spec in args.points)
+        ]
+    res = Path(args.results)
+    grid = tuple(config["sampling"]["bins"])
+    forces = {
+        name: ForcePredictor(P.reduce_force_model_path(res, config["reduced"], name))
+        for name in args.dynamics
+    }
+    learned = {
+        name: load_field_model(P.dynamics_model_path(res, name), grid)
+        for name in args.dynamics
+        if name != "replay"
+    }
+    runs = {point: point_rows(point, res, config, args, forces, learned) for point in points}
+    if len(points) > 1:
+        print("\nspeed-up of each loop (with its warm-up) over NDEM's full solve / its zone:")
+        for point, rows in runs.items():
+            for row in rows:
+                print(
+                    f"{point.scenario:>7} {point.name:>24} {row['tiles']}x: "
+                    + ", ".join(
+                        f"{name} {row['full'] / row[name]:.1f}x / {row['zone'] / row[name]:.1f}x"
+                        for name in args.dynamics
+                    )
+                )
+    first, rows = next(iter(runs.items()))
+    if len(rows) > 1:
+        bed = Bed.load(P.bed_path(res, first.scenario))
+        plot(
+            rows,
+            args.dynamics,
+            bed.length * bed.width,
+            Path(args.plot),
+            f"{first.scenario} {first.speed:g} m/s, {first.depth:g} m deep: "
+            f"{rows[0]['sim_s']:.2f} s of the pass",
+        )
+        print(f"plot: {args.plot}")
+
+
+def point_rows(
+    point: SweepPoint,
+    res: Path,
+    config: dict[str, Any],
+    args: argparse.Namespace,
+    forces: dict[str, Any],
+    learned: dict[str, Any],
+) -> list[dict[str, Any]]:
+    """One point's beds (``args.tiles``) timed under both NDEMs and each reduced loop: a row
+    per bed, wall times per simulated second."""
+    from dozerlab import sweep as P
+    from dozerlab.reduce.models import load_field_model
+    from dozerlab.reduce.run import reduce_run
     from dozerlab.scenarios.bed import Bed
     from dozerlab.scenarios.trajectory import Trajectory
 
-    threads = set_threads(args.threads)
-    config = load_config(args.config)
     full_cfg = copy.deepcopy(config)
     full_cfg["solver"]["active_zone"]["enabled"] = False
     zone_cfg = copy.deepcopy(config)
     zone_cfg["solver"]["active_zone"]["enabled"] = True
-    point = P.SweepPoint(args.scenario, args.speed, args.depth)
-    res = Path(args.results)
     bed = Bed.load(P.bed_path(res, point.scenario))
     whole = Trajectory.load_csv(P.trajectory_path(res, point))
     k = min(args.steps, whole.steps)
@@ -115,18 +182,9 @@ def main() -> None:
     sim_s = k * traj.dt
     labels = {"scenario": point.scenario, "speed": point.speed, "depth": point.depth}
     grid = tuple(config["sampling"]["bins"])
-    forces = {
-        name: ForcePredictor(P.reduce_force_model_path(res, config["reduced"], name))
-        for name in args.dynamics
-    }
-    learned = {
-        name: load_field_model(P.dynamics_model_path(res, name), grid)
-        for name in args.dynamics
-        if name != "replay"
-    }
     print(
-        f"{point.scenario} {point.name}: first {k} steps ({sim_s:.2f} s simulated), "
-        f"{threads} thread(s); wall time per simulated second"
+        f"\n{point.scenario} {point.name}: first {k} steps ({sim_s:.2f} s simulated), "
+        f"{args.threads} thread(s); wall time per simulated second"
     )
     print(
         f"{'area':>5} {'grains':>7} {'NDEM full':>9} {'NDEM zone':>9} {'loop':>8} {'reduced':>8} "
@@ -147,6 +205,7 @@ def main() -> None:
             row: dict[str, Any] = {
                 "tiles": n,
                 "grains": b.count,
+                "sim_s": sim_s,
                 "full": full / sim_s,
                 "zone": zone / sim_s,
             }
@@ -176,14 +235,7 @@ def main() -> None:
                     flush=True,
                 )
             rows.append(row)
-    plot(
-        rows,
-        args.dynamics,
-        bed.length * bed.width,
-        Path(args.plot),
-        f"{point.scenario} {point.speed:g} m/s, {point.depth:g} m deep: {sim_s:.2f} s of the pass",
-    )
-    print(f"plot: {args.plot}")
+    return rows
 
 
 def plot(rows: list[dict[str, Any]], loops: list[str], area: float, out: Path, title: str) -> None:
