@@ -21,11 +21,19 @@ def _fields(gen, rows, grid=GRID):
     return v, rho
 
 
-def _ridge(history, horizon, y_bands=(), z_bands=()):
+def _ridge(history, horizon, y_bands=(), z_bands=(), momentum=False):
     """A ridge with random weights and normalisation, clamps that bind on some bins."""
     torch.manual_seed(history + 10 * horizon + len(y_bands) + len(z_bands))
     model = DynamicsModel(
-        "ridge", GRID, history, horizon, DT, BIN, y_bands=y_bands, z_bands=z_bands
+        "ridge",
+        GRID,
+        history,
+        horizon,
+        DT,
+        BIN,
+        y_bands=y_bands,
+        z_bands=z_bands,
+        momentum=momentum,
     )
     with torch.no_grad():
         model.net.weight.normal_(std=0.05)
@@ -55,11 +63,16 @@ def test_one_advected_row_is_the_modules():
 
 
 @pytest.mark.parametrize(
-    ("history", "horizon", "y_bands", "z_bands"),
-    [(2, 1, (), ()), (2, 1, (), (1, 2)), (3, 2, (1, 3), (1,))],
+    ("history", "horizon", "y_bands", "z_bands", "momentum"),
+    [
+        (2, 1, (), (), False),
+        (2, 1, (), (1, 2), False),
+        (3, 2, (1, 3), (1,), False),
+        (2, 3, (), (1, 2), True),
+    ],
 )
-def test_the_ridge_inference_is_the_modules_forward(history, horizon, y_bands, z_bands):
-    model = _ridge(history, horizon, y_bands, z_bands)
+def test_the_ridge_inference_is_the_modules_forward(history, horizon, y_bands, z_bands, momentum):
+    model = _ridge(history, horizon, y_bands, z_bands, momentum)
     fast = RidgeInference(model)
     gen = torch.Generator().manual_seed(horizon)
     v, rho = _fields(gen, history)

@@ -49,17 +49,22 @@ def _rollout_error(model, store, steps):
 
 
 @pytest.mark.parametrize(
-    ("kind", "tol", "gain", "epochs"),
+    ("kind", "tol", "gain", "epochs", "momentum"),
     [
-        ("ridge", 0.01, 5, 1),
-        pytest.param("unet", 0.08, 2, 12, marks=pytest.mark.slow),  # 12 epochs of a U-Net
+        ("ridge", 0.01, 5, 1, False),
+        ("ridge", 0.01, 5, 1, True),
+        pytest.param("unet", 0.08, 2, 12, False, marks=pytest.mark.slow),  # 12 U-Net epochs
     ],
 )
-def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, epochs, rule_stores):
+def test_model_learns_translation_with_decay_and_rolls_it_out(
+    kind, tol, gain, epochs, momentum, rule_stores
+):
     train, held = rule_stores
     torch.manual_seed(0)
-    result = train_dynamics(kind, train, config(epochs=epochs), progress=False)
+    cfg = config(epochs=epochs, ridge_momentum=momentum)
+    result = train_dynamics(kind, train, cfg, progress=False)
     model = result.model
+    assert model.momentum == momentum
     persistence = DynamicsModel("persistence", GRID, 2, 1, DT, BIN)
     err, _ = _rollout_error(model, held, 4)
     base, _ = _rollout_error(persistence, held, 4)
@@ -67,7 +72,15 @@ def test_model_learns_translation_with_decay_and_rolls_it_out(kind, tol, gain, e
     assert base > 0.3
     # the decay is learned, not in the advection the models start from
     advection_only = DynamicsModel(
-        kind, GRID, 2, model.horizon, DT, BIN, y_bands=model.y_bands, z_bands=model.z_bands
+        kind,
+        GRID,
+        2,
+        model.horizon,
+        DT,
+        BIN,
+        y_bands=model.y_bands,
+        z_bands=model.z_bands,
+        momentum=model.momentum,
     )
     advection_only.load_state_dict({**model.state_dict(), **_zero_net(model)})
     assert _rollout_error(advection_only, held, 4)[0] > gain * err

@@ -10,8 +10,9 @@ from dozerlab.runtime import DozerlabError
 from .helpers import translating
 
 
-@pytest.mark.parametrize("kind", ["persistence", "ridge", "unet"])
-def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
+@pytest.mark.parametrize("variant", ["persistence", "ridge", "unet", "ridge-momentum"])
+def test_saved_model_reloads_and_predicts_the_same_numbers(variant, tmp_path):
+    kind, momentum = variant.removesuffix("-momentum"), variant.endswith("-momentum")
     cfg = load_config(
         {
             "mlflow": {"enabled": False},
@@ -24,6 +25,7 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
                 "ridge_horizon": 2,  # every kind predicts the rows the inputs below hold
                 "ridge_y_bands": [2],  # the helpers' grid: 5 columns, 4 rows
                 "ridge_z_bands": [1],
+                "ridge_momentum": momentum,
             },
         }
     )
@@ -34,7 +36,7 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
         "density": stores[0].density,
         "blade_velocity": stores[0].blade_velocity,
     }
-    pyfunc.save(model, {"train_points": []}, tmp_path / kind, arrays)
+    pyfunc.save(model, {"train_points": []}, tmp_path / variant, arrays)
     held = translating(7, rows=30)
     rows = np.arange(4)[:, None] + np.arange(5)[None, :]
     inputs = {
@@ -43,7 +45,7 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
         "blade_velocity": held.blade_velocity[rows],
     }
     expected = pyfunc.predict_arrays(model, inputs)
-    loaded = mlflow.pyfunc.load_model(str(tmp_path / kind))
+    loaded = mlflow.pyfunc.load_model(str(tmp_path / variant))
     assert loaded.metadata.metadata["history"] == 3 and loaded.metadata.metadata["horizon"] == 2
     got = loaded.predict(inputs)
     assert got["velocity"].shape == (4, 2, *held.grid, 3) and got["density"].shape == (
@@ -53,11 +55,12 @@ def test_saved_model_reloads_and_predicts_the_same_numbers(kind, tmp_path):
     )
     for name in ("velocity", "density"):
         np.testing.assert_allclose(got[name], expected[name], rtol=1e-5, atol=1e-4)
-    direct, meta = pyfunc.load(tmp_path / kind)
+    direct, meta = pyfunc.load(tmp_path / variant)
     np.testing.assert_array_equal(
         pyfunc.predict_arrays(direct, inputs)["density"], expected["density"]
     )
     assert meta["kind"] == kind
+    assert direct.momentum == meta["momentum"] == (kind == "ridge" and momentum)
 
 
 def test_missing_array_and_force_model_directory_are_refused(tmp_path):

@@ -16,7 +16,13 @@ import torch
 from numba import njit
 
 from dozerlab.learn.dynamics.advection import EMPTY_DENSITY
-from dozerlab.learn.dynamics.models import FIELD_CHANNELS, DynamicsModel, RidgeStencil
+from dozerlab.learn.dynamics.models import (
+    FIELD_CHANNELS,
+    MOMENTUM_CHANNELS,
+    MOMENTUM_DENSITY,
+    DynamicsModel,
+    RidgeStencil,
+)
 
 
 @njit(cache=True)
@@ -116,16 +122,18 @@ def correct_rows(
     The model is linear, so each bin's channels are split into a blank bin's (no material, at
     rest: the same everywhere for a given blade velocity) and the fields over their spreads
     (zero in a blank bin). The blank part's sum over a neighbourhood is made once per layer
-    and box from ``blank_weight`` (X, boxes, 4(H + m), 4m), the stencil's weights summed over
-    the 27 neighbours; the rest from ``weight`` (X, boxes, 4m, 27·4(H + m)), the neighbours
+    and box from ``blank_weight`` (X, boxes, C(H + m), 4m), the stencil's weights summed over
+    the 27 neighbours; the rest from ``weight`` (X, boxes, 4m, 27·C(H + m)), the neighbours
     (i, j, k) and channels of a bin in the order they lie in the channel-last grid, skipped
     where a bin's neighbourhood holds nothing. ``const`` (X, 4m, Y, Z) the position's and bias's
     terms, ``ctl_w`` (X, boxes, 3(H + m), 4m) the control's weights times ``cond``, the
-    normalised control, ``box_of`` (Y, Z) each bin's box, ``mean`` and ``std`` the channels'
-    normalisation, ``res_std`` (4,) the residuals' spreads."""
+    normalised control, ``box_of`` (Y, Z) each bin's box, ``mean`` and ``std`` (C(H + m),) the
+    channels' normalisation (C channels a row: the model's ``row_channels``), ``res_std`` (4,)
+    the residuals' spreads."""
     h, nx, ny, nz = hist_rho.shape
     m = base_rho.shape[0]
-    ch = FIELD_CHANNELS * (h + m)
+    ch = mean.shape[0]
+    per_row = ch // (h + m)  # FIELD_CHANNELS, or MOMENTUM_CHANNELS with the momentum's three
     outs = FIELD_CHANNELS * m
     nb = ctl_w.shape[1]
     line = 3 * ch  # three bins along z and their channels
@@ -144,7 +152,7 @@ def correct_rows(
                 at = ((xp * py + yp) * pz + zp) * ch
                 full = False
                 for row in range(h + m):
-                    c = FIELD_CHANNELS * row
+                    c = per_row * row
                     r = hist_rho[row, x, y, z] if row < h else base_rho[row - h, x, y, z]
                     full |= r != 0.0
                     grid[at + c] = r * inv[c]
@@ -155,11 +163,15 @@ def correct_rows(
                             v = base_v[row - h, x, y, z, a]
                         full |= v != 0.0
                         grid[at + c + 1 + a] = v * inv[c + 1 + a]
+                        if per_row == MOMENTUM_CHANNELS:
+                            # ρ(v − v_b), zero in a blank bin as the other channels here
+                            mom = r * (v - blade_v[row, a]) / np.float32(MOMENTUM_DENSITY)
+                            grid[at + c + 4 + a] = mom * inv[c + 4 + a]
                 filled[xp, yp, zp] = full
     blank = np.empty(ch, np.float32)
     for c in range(ch):
-        row, comp = c // FIELD_CHANNELS, c % FIELD_CHANNELS
-        raw = np.float32(0.0) if comp == 0 else -blade_v[row, comp - 1]
+        row, comp = c // per_row, c % per_row
+        raw = -blade_v[row, comp - 1] if 1 <= comp <= 3 else np.float32(0.0)
         blank[c] = (raw - mean[c]) * inv[c]
     fixed = np.zeros((nx, nb, outs), np.float32)
     for x in range(nx):
@@ -262,7 +274,7 @@ class RidgeInference:
             raise ValueError(f"RidgeInference needs a ridge model, got {model.kind!r}")
         self.history, self.horizon, self.grid = model.history, model.horizon, model.grid
         nx, ny, nz = self.grid
-        ch = FIELD_CHANNELS * (self.history + self.horizon)
+        ch = model.row_channels * (self.history + self.horizon)
         d, outs = 27 * ch, FIELD_CHANNELS * self.horizon
         boxes = list(net.boxes)
         with torch.no_grad():

@@ -8,8 +8,10 @@ motion made explicit) and add a learned correction, in units of the training res
 position and the blade control (a 3D convolution fitted by ridge regression, with weights per
 layer along x and band of heights; it cannot diverge), ``unet`` a small 3D U-Net on the same channels. Input channels per history row: the
 density and the velocity relative to that row's blade velocity; per predicted row: the advected
-density and velocity relative to the blade. Normalisation lives in buffers, so a state dict is
-the whole model.
+density and velocity relative to the blade; with ``momentum`` (the ridge's
+``dynamics.ridge_momentum``) also the momentum density relative to the blade, ρ(v − v_blade),
+which a linear map of the fields alone cannot form. Normalisation lives in buffers, so a state
+dict is the whole model.
 """
 
 from __future__ import annotations
@@ -28,6 +30,10 @@ from dozerlab.learn.models import Conv3d, pad_even, resize_trilinear
 DYNAMICS_MODELS = ("persistence", "ridge", "unet")
 #: Field channels of a row: density, then the three velocity components.
 FIELD_CHANNELS = 4
+#: Input channels of a row with momentum: the field channels, then ρ(v − v_blade) over
+#: :data:`MOMENTUM_DENSITY` (velocity's units).
+MOMENTUM_CHANNELS = 7
+MOMENTUM_DENSITY = 1000.0
 
 
 def coordinates(grid: tuple[int, int, int]) -> torch.Tensor:
@@ -215,6 +221,7 @@ class DynamicsModel(nn.Module):
         width: int = 8,
         y_bands: tuple[int, ...] = (),
         z_bands: tuple[int, ...] = (),
+        momentum: bool = False,
     ) -> None:
         super().__init__()
         if kind not in DYNAMICS_MODELS:
@@ -232,7 +239,8 @@ class DynamicsModel(nn.Module):
             float(bin_size[1]),
             float(bin_size[2]),
         )
-        channels = FIELD_CHANNELS * (self.history + self.horizon)
+        self.momentum = bool(momentum)
+        channels = self.row_channels * (self.history + self.horizon)
         cond = 3 * (self.history + self.horizon)
         outputs = FIELD_CHANNELS * self.horizon
         self.register_buffer("coords", coordinates(self.grid), persistent=False)
@@ -265,6 +273,7 @@ class DynamicsModel(nn.Module):
             "width": self.width,
             "y_bands": list(self.y_bands),
             "z_bands": list(self.z_bands),
+            "momentum": self.momentum,
         }
 
     def base(
@@ -279,14 +288,23 @@ class DynamicsModel(nn.Module):
             rhos.append(rho)
         return torch.stack(vs, 1), torch.stack(rhos, 1)
 
-    @staticmethod
+    @property
+    def row_channels(self) -> int:
+        """Input channels per row: :data:`FIELD_CHANNELS`, or :data:`MOMENTUM_CHANNELS`."""
+        return MOMENTUM_CHANNELS if self.momentum else FIELD_CHANNELS
+
     def channels(
-        velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
+        self, velocity: torch.Tensor, density: torch.Tensor, blade_velocity: torch.Tensor
     ) -> torch.Tensor:
-        """(B, 4·R, X, Y, Z) density and velocity relative to the blade of R rows, with
-        ``blade_velocity`` (B, R, 3) the blade velocity of each row."""
+        """(B, C·R, X, Y, Z) density and velocity relative to the blade of R rows (and with
+        ``momentum`` the momentum density relative to the blade over :data:`MOMENTUM_DENSITY`),
+        C = :attr:`row_channels`, with ``blade_velocity`` (B, R, 3) the blade velocity of each
+        row."""
         rel = velocity - blade_velocity[:, :, None, None, None, :]
-        ch = torch.cat([density.unsqueeze(-1), rel], dim=-1)  # B, R, X, Y, Z, 4
+        parts = [density.unsqueeze(-1), rel]
+        if self.momentum:
+            parts.append(rel * (density.unsqueeze(-1) / MOMENTUM_DENSITY))
+        ch = torch.cat(parts, dim=-1)  # B, R, X, Y, Z, C
         return ch.permute(0, 1, 5, 2, 3, 4).flatten(1, 2)
 
     def inputs(

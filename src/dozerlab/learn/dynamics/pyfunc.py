@@ -47,6 +47,7 @@ def build(meta: dict[str, Any], weights: str | Path) -> DynamicsModel:
         meta.get("width", 8),
         tuple(meta.get("y_bands", ())),
         tuple(meta.get("z_bands", ())),
+        bool(meta.get("momentum", False)),
     )
     model.load_state_dict(torch.load(weights, map_location="cpu", weights_only=True))
     return model.eval()

@@ -239,7 +239,16 @@ def train_dynamics(
                 f"training stores' {n} bins along {axis} (allowed: edges within 1..{n - 1})"
             )
     model = DynamicsModel(
-        kind, grid, h, m, row_dt, bin_size, dyn["width"], bands["y"], bands["z"]
+        kind,
+        grid,
+        h,
+        m,
+        row_dt,
+        bin_size,
+        dyn["width"],
+        bands["y"],
+        bands["z"],
+        momentum=ridge and dyn["ridge_momentum"],
     ).to(dev)
     result = TrainResult(model, samples={"train": len(train), "validation": len(val)})
     t0 = time.perf_counter()
