@@ -119,9 +119,9 @@ def test_without_twins_the_tables_hold_the_figures_alone(tmp_path):
     assert table_cells(text, 0) == ["ridge", "linear-loop", "72.0", "8.0", "62.0", "–", "2 of 3"]
     assert table_cells(text, 1)[2:] == ["72.0", "8.0", "2.0"]
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "ridge is the best learned evolution model, on its one held-out point: smoothed-surface "
-        "accuracy 72.0 %, low-passed force error 8.0 %, loop 62.0× as fast as NDEM; 2 of 3 "
-        "targets met on every held-out point."
+        "ridge is the best learned evolution model in the loop, on its one held-out point: "
+        "smoothed-surface accuracy 72.0 %, low-passed force error 8.0 %, loop 62.0× as fast as "
+        "NDEM; 2 of 3 targets met on every held-out point."
     )
 
 
@@ -165,9 +165,9 @@ def test_the_verdict_says_its_figures_are_means_over_the_held_out_points(tmp_pat
     )
     path.write_text(json.dumps(doc))
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "ridge is the best learned evolution model, means over its 2 held-out points: "
-        "smoothed-surface skill 0.85, low-passed force error 1.00× the twin's, loop 50.0× as fast "
-        "as NDEM; 2 of 3 targets met on every held-out point."
+        "ridge is the best learned evolution model in the loop, means over its 2 held-out "
+        "points: smoothed-surface skill 0.85, low-passed force error 1.00× the twin's, loop "
+        "50.0× as fast as NDEM; 2 of 3 targets met on every held-out point."
     )
 
 
@@ -182,9 +182,9 @@ def test_the_verdict_is_the_best_learned_model_else_the_replay_control(tmp_path)
     )
     reduced_json(tmp_path, "ridge")
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "ridge is the best learned evolution model, on its one held-out point: smoothed-surface "
-        "skill 0.80, low-passed force error 0.80× the twin's, loop 62.0× as fast as NDEM; 2 of 3 "
-        "targets met on every held-out point."
+        "ridge is the best learned evolution model in the loop, on its one held-out point: "
+        "smoothed-surface skill 0.80, low-passed force error 0.80× the twin's, loop 62.0× as "
+        "fast as NDEM; 2 of 3 targets met on every held-out point."
     )
     # the highest mean smoothed-surface skill wins, whatever the order of the models
     reduced_json(tmp_path, "unet")
@@ -194,9 +194,9 @@ def test_the_verdict_is_the_best_learned_model_else_the_replay_control(tmp_path)
     doc["points"][0]["targets_met"] |= {"surface_skill": False, "job_speedup": True}
     path.write_text(json.dumps(doc))
     assert reduced.verdict(report_context(cfg, tmp_path)) == (
-        "unet is the best learned evolution model, on its one held-out point: smoothed-surface "
-        "skill 0.85, low-passed force error 0.80× the twin's, loop 62.0× and job 12.0× as fast "
-        "as NDEM; 3 of 4 targets met on every held-out point."
+        "unet is the best learned evolution model in the loop, on its one held-out point: "
+        "smoothed-surface skill 0.85, low-passed force error 0.80× the twin's, loop 62.0× and "
+        "job 12.0× as fast as NDEM; 3 of 4 targets met on every held-out point."
     )
     # the section's table: a row per model, in the config's order
     text = reduced.render(report_context(cfg, tmp_path))

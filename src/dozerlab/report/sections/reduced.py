@@ -255,7 +255,9 @@ def verdict(ctx: Context) -> str | None:
             else "surface_accuracy"
         )
         best = max(learned, key=lambda m: _mean(learned[m], key) or -math.inf)
-        return _headline(f"{best} is the best learned evolution model", learned[best], _ndem(ctx))
+        return _headline(
+            f"{best} is the best learned evolution model in the loop", learned[best], _ndem(ctx)
+        )
     if docs.get(REPLAY, {}).get("points"):
         who = f"{REPLAY} (NDEM's own fields: the loop's own error)"
         return _headline(who, docs[REPLAY]["points"], _ndem(ctx))
