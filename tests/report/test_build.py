@@ -121,7 +121,7 @@ def test_the_summary_answers_the_four_questions_before_the_sections(tmp_path):
         "cut depths 0.1 m; mean |F| 1.21 kN (hill 0.5 m/s, 0.1 m); stepping took 12 s a run."
     )
     assert force.startswith("linear predicts the draft force best over the held-out groups")
-    assert evolution.startswith("ridge evolves the fields best from NDEM&#x27;s own")
+    assert evolution.startswith("ridge evolves the fields best, started from NDEM&#x27;s")
     assert reduced == (
         "ridge is the best learned evolution model in the loop, on its one held-out point: "
         "smoothed-surface skill 0.80, low-passed force error 0.80× the twin&#x27;s, loop 62.0× "

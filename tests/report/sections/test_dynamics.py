@@ -26,7 +26,7 @@ def test_the_best_model_is_judged_against_persistence(tmp_path):
     assert "<td>0.500</td><td>0.500</td></tr>" in text
     assert 'id="dynamics-unet"' in text and "history 2 rows, horizon 1" in text
     assert dynamics.verdict(report_context(CFG, tmp_path)) == (
-        "ridge evolves the fields best from NDEM's own: its velocity error is 0.50× "
+        "ridge evolves the fields best, started from NDEM's: its velocity error is 0.50× "
         "persistence's after one step and 0.50× after 50 steps, mass within 2.0 % (the worse "
         "held-out group); it meets the targets ≤ 0.6× and ±5 %."
     )

@@ -104,10 +104,10 @@ def verdict(ctx: Context) -> str | None:
     one, fifty, mass = scored[best]
     ok = max(one, fifty) <= RATIO_TARGET and mass <= MASS_TARGET
     return (
-        f"{best} evolves the fields best from NDEM's own: its velocity error is {one:.2f}× "
+        f"{best} evolves the fields best, started from NDEM's: its velocity error is {one:.2f}× "
         f"persistence's after one step and {fifty:.2f}× after 50 steps, mass within "
-        f"{html.percent(mass)} (the worse held-out group); it {'meets' if ok else 'misses'} the targets ≤ {RATIO_TARGET}× and "
-        f"±{html.percent(MASS_TARGET, 0)}."
+        f"{html.percent(mass)} (the worse held-out group); it {'meets' if ok else 'misses'} "
+        f"the targets ≤ {RATIO_TARGET}× and ±{html.percent(MASS_TARGET, 0)}."
     )
 
 
