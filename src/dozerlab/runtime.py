@@ -36,6 +36,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from threadpoolctl import threadpool_limits
+
 
 class DozerlabError(Exception):
     """An error the user can act on; the CLI prints its message without a traceback."""
@@ -48,7 +50,7 @@ class ConfigError(DozerlabError, ValueError):
 
 
 def set_threads(n: int) -> int:
-    """Limit numba, torch and BLAS to ``n`` threads (the Snakemake rule's ``threads``).
+    """Limit numba, torch and numpy's BLAS to ``n`` threads (the Snakemake rule's ``threads``).
 
     Snakemake sets ``OMP_NUM_THREADS`` but not ``NUMBA_NUM_THREADS``. numba fixes its pool
     size when it first starts and refuses a changed ``NUMBA_NUM_THREADS`` after that, so the
@@ -72,6 +74,9 @@ def set_threads(n: int) -> int:
     torch = sys.modules.get("torch")
     if torch is not None:
         torch.set_num_threads(n)
+    # numpy's BLAS (the ridge's Gram matrices, learn.fitting.gram) read the variables when
+    # numpy was imported, before this: its pool is limited where it stands
+    threadpool_limits(n, user_api="blas")
     return n
 
 

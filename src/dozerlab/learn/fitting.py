@@ -5,7 +5,6 @@ accumulated in chunks)."""
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 from collections.abc import Callable, Iterable
 from typing import Any, TypedDict
@@ -138,26 +137,21 @@ def solve_ridge(
     return w, ym - xm @ w
 
 
-def symmetric_product(a: torch.Tensor, b: torch.Tensor, blocks: int = 4) -> torch.Tensor:
-    """aᵀb (D, D) for ``a``, ``b`` (N, D) whose product is symmetric (a = W·b, W diagonal), from
-    its upper block triangle: 0.56-0.71 of the full product's time for the ridge's 447 columns
-    (0.62 of its multiplications with four blocks; BENCHMARKS.md, "The projection's contact
-    list, cheaper")."""
-    d = a.shape[1]
-    edges = [d * i // blocks for i in range(blocks + 1)]
-    out = a.new_empty(d, d)
-    for lo, hi in itertools.pairwise(edges):
-        part = a[:, lo:hi].T @ b[:, lo:]
-        out[lo:hi, lo:] = part
-        out[hi:, lo:hi] = part[:, hi - lo :].T
-    return out
+def gram(a: torch.Tensor) -> torch.Tensor:
+    """aᵀa (D, D) for ``a`` (N, D), in ``a``'s precision. On the CPU through numpy, whose
+    ``a.T @ a`` of one buffer is BLAS's symmetric rank-k update: half the multiplications of a
+    product."""
+    if a.device.type != "cpu":
+        return a.T @ a
+    rows = a.detach().contiguous().numpy()
+    return torch.from_numpy(rows.T @ rows)
 
 
 class NormalEquations:
     """Weighted ridge regression from design rows added in chunks (too many to hold at once).
 
-    ``add(x (N, D), y (N, K), weight (N,) or None)`` accumulates the weighted moments in float64;
-    ``solve(alpha)`` minimises the weighted mean squared error + ``alpha``·‖w‖² over
+    ``add(x (N, D), y (N, K), weight (N,) >= 0 or None)`` accumulates the weighted moments in
+    float64; ``solve(alpha)`` minimises the weighted mean squared error + ``alpha``·‖w‖² over
     standardised columns, intercept unpenalised, and returns w (D, K) and b (K,).
     """
 
@@ -169,18 +163,26 @@ class NormalEquations:
 
     def add(self, x: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | None = None) -> None:
         if weight is not None:
+            if bool((weight < 0).any()):
+                raise ValueError("ridge row weights must be >= 0")
             # a row of weight 0 adds nothing to any sum: the ridge's velocity rows are weighted
             # by density, and 41 % of the default sweep's bins are empty (BENCHMARKS.md)
             keep = weight != 0
             if not bool(keep.all()):
                 x, y, weight = x[keep], y[keep], weight[keep]
-        # chunk products in the rows' precision (standardised-scale features), sums in float64
-        xw = x if weight is None else x * weight[:, None]
+        d = x.shape[1]
         self.sw += x.shape[0] if weight is None else weight.double().sum()
-        self.sx += xw.double().sum(0)
+        self.sx += (x if weight is None else x * weight[:, None]).double().sum(0)
         self.sy += (y if weight is None else y * weight[:, None]).double().sum(0)
-        self.sxx += symmetric_product(xw, x).double()
-        self.sxy += (xw.T @ y).double()
+        # xᵀWx and xᵀWy from one Gram of the rows and targets scaled by √w, in float64: the
+        # ridge's rollouts amplify its weights' rounding, and float32 products made its
+        # validation rollout loss a draw of the summation order (2.88-3.57 on the default
+        # sweep, 2.861 in float64 whatever the order; BENCHMARKS.md, "The ridge's normal
+        # equations in float64")
+        xy = torch.cat([x, y.to(x.dtype)], 1).double()
+        g = gram(xy if weight is None else xy * weight.double().sqrt()[:, None])
+        self.sxx += g[:d, :d]
+        self.sxy += g[:d, d:]
 
     def solve(self, alpha: float) -> tuple[torch.Tensor, torch.Tensor]:
         if alpha < 0:
@@ -192,8 +194,9 @@ class NormalEquations:
         cov = self.sxx / n - torch.outer(xm, xm)
         cxy = self.sxy / n - torch.outer(xm, ym)
         var = cov.diagonal().clamp_min(0)
-        # a column constant over the rows (rounding leaves a tiny variance) carries nothing
-        live = (var > 1e-10 * var.max()).double()
+        # a column constant over the rows carries nothing; rounding leaves it a variance of
+        # about 1e-16 of its mean square, which standardising would blow up to unit noise
+        live = ((var > 1e-10 * var.max()) & (var > 1e-12 * self.sxx.diagonal() / n)).double()
         xs = torch.where(live > 0, var.sqrt(), torch.ones_like(var))
         a = cov * torch.outer(live, live) / torch.outer(xs, xs)
         a.diagonal().add_(alpha + 1e-9)

@@ -150,7 +150,7 @@ def fit_ridge(
         y_v = ((v_true - base[0]) / model.res_std[1:]).flatten(3, 4)  # B, m, X, YZ, 3
         w_v = (rho_true / rho_scale).flatten(3)
         for p, (i, _, idx) in enumerate(parts):
-            r = rows[:, i, idx].reshape(-1, d)
+            r = rows[:, i, idx].reshape(-1, d).double()  # once for the part's four sums
             eq_rho[p].add(r, y_rho[:, :, i, idx].permute(0, 2, 1).reshape(-1, m))
             for j in range(m):
                 eq_v[p][j].add(r, y_v[:, j, i, idx].reshape(-1, 3), w_v[:, j, i, idx].reshape(-1))
