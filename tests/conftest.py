@@ -11,6 +11,21 @@ from dozerlab import spool, tracking
 from tests.helpers import copy_mlflow_store
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _working_folders_tracking_store_untouched():
+    """No test may log to the MLflow store of the folder pytest runs in: after a sweep that is
+    the user's ``mlflow.db``. A test that tracks takes :func:`mlflow_store`; one that runs a
+    command in-process with tracking on would write there, so the session fails if it changed."""
+    db = Path("mlflow.db").resolve()
+
+    def stamp() -> tuple[int, int] | None:
+        return (db.stat().st_size, db.stat().st_mtime_ns) if db.exists() else None
+
+    before = stamp()
+    yield
+    assert stamp() == before, f"a test wrote to the working folder's MLflow store {db}"
+
+
 @pytest.fixture(scope="session")
 def mlflow_template(tmp_path_factory) -> Path:
     """An empty SQLite MLflow store, made once a session: tests copy it

@@ -24,10 +24,11 @@ def test_a_missing_model_directory_is_named(tmp_path, capsys):
     assert "not a dozerlab model directory" in err and str(tmp_path / "nowhere") in err
 
 
-def test_a_store_given_twice_is_refused_naming_both(store_files, tmp_path, capsys):
+def test_a_store_given_twice_is_refused_naming_both(store_files, tmp_path, capsys, monkeypatch):
     """``train --train F F`` counted the point twice; a copy of a store is the same point."""
     import shutil
 
+    monkeypatch.setenv("DOZERLAB_MLFLOW", "0")  # validate logs its refusal otherwise
     one = store_files["train"][0]
     copy = tmp_path / "copy.zarr"
     shutil.copytree(one, copy)
