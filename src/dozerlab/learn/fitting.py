@@ -171,16 +171,17 @@ class NormalEquations:
             if not bool(keep.all()):
                 x, y, weight = x[keep], y[keep], weight[keep]
         d = x.shape[1]
-        self.sw += x.shape[0] if weight is None else weight.double().sum()
-        self.sx += (x if weight is None else x * weight[:, None]).double().sum(0)
-        self.sy += (y if weight is None else y * weight[:, None]).double().sum(0)
+        # the sums are made on the rows' device and kept on the CPU
+        self.sw += x.shape[0] if weight is None else weight.double().sum().cpu()
+        self.sx += (x if weight is None else x * weight[:, None]).double().sum(0).cpu()
+        self.sy += (y if weight is None else y * weight[:, None]).double().sum(0).cpu()
         # xᵀWx and xᵀWy from one Gram of the rows and targets scaled by √w, in float64: the
         # ridge's rollouts amplify its weights' rounding, and float32 products made its
-        # validation rollout loss a draw of the summation order (2.88-3.57 on the default
+        # validation rollout loss a draw of the summation order (2.88-6.8 on the default
         # sweep, 2.861 in float64 whatever the order; BENCHMARKS.md, "The ridge's normal
         # equations in float64")
         xy = torch.cat([x, y.to(x.dtype)], 1).double()
-        g = gram(xy if weight is None else xy * weight.double().sqrt()[:, None])
+        g = gram(xy if weight is None else xy * weight.double().sqrt()[:, None]).cpu()
         self.sxx += g[:d, :d]
         self.sxy += g[:d, d:]
 
