@@ -7,7 +7,7 @@ normalisation, stencil, correction) through the module against :class:`RidgeInfe
 reduced loop's path.
 
     python benchmarks/ridge_stencil.py [--bins 24 18 8] [--z-bands 1 3] [--history 2] \
-        [--horizon 1] [--threads 1]
+        [--horizon 1] [--momentum] [--threads 1]
 
 Random weights and fields on the grid (the default sweep's 24 × 18 × 8); prints the ms per call
 (batch 1, as the reduced loop calls it; best of 5 rounds) of each and the largest difference of
@@ -67,6 +67,11 @@ def main() -> None:
     )
     ap.add_argument("--history", type=int, default=2)
     ap.add_argument("--horizon", type=int, default=1)
+    ap.add_argument(
+        "--momentum",
+        action="store_true",
+        help="the whole model with the momentum channels (dynamics.ridge_momentum)",
+    )
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     set_threads(args.threads)
@@ -116,17 +121,28 @@ def main() -> None:
         f"difference {diff:.2g} (outputs up to {float(ref.abs().max()):.3g})"
     )
 
-    model_vs_inference(grid, args.history, args.horizon, tuple(args.z_bands))
+    model_vs_inference(grid, args.history, args.horizon, tuple(args.z_bands), args.momentum)
 
 
 def model_vs_inference(
-    grid: tuple[int, int, int], history: int, horizon: int, z_bands: tuple[int, ...]
+    grid: tuple[int, int, int],
+    history: int,
+    horizon: int,
+    z_bands: tuple[int, ...],
+    momentum: bool = False,
 ) -> None:
     """Print the ms per call of a banded ridge model's forward through the module and through
     :class:`RidgeInference` on one window of fields like a bed's (densities 0 or up to
     1800 kg/m³, grains moving at up to ~1 m/s), and their largest difference."""
     model = DynamicsModel(
-        "ridge", grid, history, horizon, 0.01, (0.05, 0.05, 0.05), z_bands=z_bands
+        "ridge",
+        grid,
+        history,
+        horizon,
+        0.01,
+        (0.05, 0.05, 0.05),
+        z_bands=z_bands,
+        momentum=momentum,
     )
     gen = torch.Generator().manual_seed(1)
     with torch.no_grad():
@@ -149,7 +165,8 @@ def model_vs_inference(
     dv = float(np.abs(got[0] - ref[0][0].numpy()).max())
     drho = float(np.abs(got[1] - ref[1][0].numpy()).max())
     print(
-        f"the whole model (z bands {list(z_bands)}, history {history}, horizon {horizon}): "
+        f"the whole model (z bands {list(z_bands)}, history {history}, horizon {horizon}, "
+        f"momentum {momentum}): "
         f"module forward {module:.2f} ms, RidgeInference {inference:.2f} ms "
         f"({module / inference:.1f}x); largest difference {dv:.2g} m/s, {drho:.2g} kg/m³"
     )

@@ -108,8 +108,8 @@ class PyfuncFieldModel:
         self.history = int(self.module.history)
         self.horizon = int(self.module.horizon)
         self.grid = grid
-        # the ridge's forward compiled: 0.9 ms a call against the module's 3.5-4.0 ms on the
-        # default grid (BENCHMARKS.md, "The ridge's stencil sums compiled")
+        # the ridge's forward compiled: 1.9-2.0 ms a call against the module's 8.5-8.6 ms on
+        # the default grid (BENCHMARKS.md, "The ridge's sums, four outputs a read")
         self.ridge = RidgeInference(self.module) if self.module.kind == "ridge" else None
 
     def predict(

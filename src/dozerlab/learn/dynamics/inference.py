@@ -5,8 +5,8 @@
 float32 round-off, in two compiled passes: the advection, then the stencil's sums with the
 correction and clamps (:func:`correct_rows`). The terms that do not change between calls (the
 position's and bias's, the weights in the order the sums read them) are made once. On the
-default sweep's ridge a call takes 0.9 ms against 1.6 ms through torch's grouped convolutions
-and 3.5–4.0 ms through the module (BENCHMARKS.md, "The ridge's stencil sums compiled").
+default sweep's ridge (momentum channels, three rows a call) a call takes 1.9–2.0 ms against
+8.5–8.6 ms through the module (BENCHMARKS.md, "The ridge's sums, four outputs a read").
 """
 
 from __future__ import annotations
@@ -87,9 +87,10 @@ def advect_row(rho, vel, shift, scale):  # pragma: no cover - compiled
     return rho_new, v_new
 
 
-#: Bins along y summed at once against one layer's weights (the four sums s0-s3 of
-#: :func:`correct_rows`): each weight read serves four bins. One bin at a time the reads bound
-#: the sums (BENCHMARKS.md, "The ridge's stencil sums compiled").
+#: Bins along y summed at once against one layer's weights (the sums s00-s33 of
+#: :func:`correct_rows`, four bins by four outputs): each weight read serves four bins, as each
+#: read of the bins serves four outputs. One bin or one output at a time the reads bound the sums (BENCHMARKS.md,
+#: "The ridge's stencil sums compiled" and "The ridge's sums, four outputs a read").
 BLOCK = 4
 
 
@@ -215,26 +216,47 @@ def correct_rows(
                 if seen:
                     # a block shorter than BLOCK reads the bins after it too (the padding, or
                     # the next block's): summed, not used
-                    for o in range(outs):
-                        s0 = np.float32(0.0)
-                        s1 = np.float32(0.0)
-                        s2 = np.float32(0.0)
-                        s3 = np.float32(0.0)
+                    # four outputs at a time (outs = 4m): 16 sums in registers
+                    for o in range(0, outs, 4):
+                        s00 = s01 = s02 = s03 = np.float32(0.0)
+                        s10 = s11 = s12 = s13 = np.float32(0.0)
+                        s20 = s21 = s22 = s23 = np.float32(0.0)
+                        s30 = s31 = s32 = s33 = np.float32(0.0)
                         for i in range(3):
                             at = (((x + i) * nz + z) * py + y0) * line
                             # views: an index computed in the loop costs a check for negative
                             # values at each read, and the sums were not vectorised (7x slower)
-                            w = weight[x, b, o, i * seg : (i + 1) * seg]
+                            w0 = weight[x, b, o, i * seg : (i + 1) * seg]
+                            w1 = weight[x, b, o + 1, i * seg : (i + 1) * seg]
+                            w2 = weight[x, b, o + 2, i * seg : (i + 1) * seg]
+                            w3 = weight[x, b, o + 3, i * seg : (i + 1) * seg]
                             l0 = lines[at : at + seg]
                             l1 = lines[min(at + line, last) :]
                             l2 = lines[min(at + 2 * line, last) :]
                             l3 = lines[min(at + 3 * line, last) :]
                             for t in range(seg):
-                                s0 += l0[t] * w[t]
-                                s1 += l1[t] * w[t]
-                                s2 += l2[t] * w[t]
-                                s3 += l3[t] * w[t]
-                        sums[0, o], sums[1, o], sums[2, o], sums[3, o] = s0, s1, s2, s3
+                                a0, a1, a2, a3 = l0[t], l1[t], l2[t], l3[t]
+                                c0, c1, c2, c3 = w0[t], w1[t], w2[t], w3[t]
+                                s00 += a0 * c0
+                                s01 += a0 * c1
+                                s02 += a0 * c2
+                                s03 += a0 * c3
+                                s10 += a1 * c0
+                                s11 += a1 * c1
+                                s12 += a1 * c2
+                                s13 += a1 * c3
+                                s20 += a2 * c0
+                                s21 += a2 * c1
+                                s22 += a2 * c2
+                                s23 += a2 * c3
+                                s30 += a3 * c0
+                                s31 += a3 * c1
+                                s32 += a3 * c2
+                                s33 += a3 * c3
+                        sums[0, o : o + 4] = (s00, s01, s02, s03)
+                        sums[1, o : o + 4] = (s10, s11, s12, s13)
+                        sums[2, o : o + 4] = (s20, s21, s22, s23)
+                        sums[3, o : o + 4] = (s30, s31, s32, s33)
                 else:
                     sums[:] = 0.0
                 for q in range(n):
