@@ -73,8 +73,12 @@ def test_the_batched_rows_are_each_rows_own_prediction(ndem_run):
         fk, tk = forces.predict(
             store.velocity[: k + 1], store.density[: k + 1], store.blade_velocity[: k + 1]
         )
-        np.testing.assert_allclose(f[k], fk, rtol=1e-5, atol=1e-3)
-        np.testing.assert_allclose(t[k], tk, rtol=1e-5, atol=1e-3)
+        # a linear model's rows come from column sums in float64, the single row through the
+        # module in float32: on this run's mirror-symmetric fields the rows' mirror-odd
+        # components are 0, the module's its float32 round-off times this small fit's odd
+        # weights (up to 1e5): 0.016 N and N·m
+        np.testing.assert_allclose(f[k], fk, rtol=1e-5, atol=0.05)
+        np.testing.assert_allclose(t[k], tk, rtol=1e-5, atol=0.05)
 
 
 def test_a_run_whose_blade_part_the_force_model_does_not_read_is_refused(ndem_run):

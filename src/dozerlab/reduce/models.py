@@ -24,6 +24,7 @@ import torch
 from dozerlab.learn.dynamics.inference import RidgeInference
 from dozerlab.learn.dynamics.pyfunc import FORMAT as DYNAMICS_FORMAT
 from dozerlab.learn.dynamics.pyfunc import predict_arrays
+from dozerlab.learn.inference import LinearForceRows
 from dozerlab.learn.pyfunc import FORMAT as FORCE_FORMAT
 from dozerlab.learn.pyfunc import check_inputs, with_history
 from dozerlab.learn.pyfunc import predict_arrays as predict_force_rows
@@ -31,10 +32,10 @@ from dozerlab.runtime import DozerlabError
 
 #: The dynamics-model name that replays the point's own NDEM store.
 REPLAY = "replay"
-#: Rows a force model reads at once after the loop. With batches of 256 and torch's first call
-#: in the loop's time, that pass took 0.45-0.72 ms a row of the default sweep's reduce jobs; in
-#: batches of 16 after a first call at load, 0.10-0.17 ms, the same numbers (BENCHMARKS.md,
-#: "The loop's force rows in small batches").
+#: Rows a force model other than a linear one reads at once after the loop. With batches of 256
+#: and torch's first call in the loop's time, that pass took 0.45-0.72 ms a row of the default
+#: sweep's reduce jobs; in batches of 16 after a first call at load, 0.10-0.17 ms, the same
+#: numbers (BENCHMARKS.md, "The loop's force rows in small batches").
 FORCE_BATCH = 16
 
 
@@ -220,12 +221,15 @@ class ForcePredictor:
         kind = str(meta.get("kind") or path.name)
         self.name = f"{kind}-loop" if meta.get("loop_fields") else kind
         self.bin_size = meta.get("bin_size")
-        # torch's first call in a process costs several times the next: made here, it falls in
+        # a linear model's rows from the fields' column sums: a tenth of its time through torch
+        self._linear = LinearForceRows(self.module) if self.module.kind == "linear" else None
+        # torch's first call in a process costs several times the next, and the compiled
+        # sums' first call on the loop's float32 fields loads them: made here, it falls in
         # loading the model, not in the loop (FORCE_BATCH)
         grid = tuple(self.module.grid)
         self.predict_rows(
-            np.zeros((FORCE_BATCH, *grid, 3)),
-            np.zeros((FORCE_BATCH, *grid)),
+            np.zeros((FORCE_BATCH, *grid, 3), np.float32),
+            np.zeros((FORCE_BATCH, *grid), np.float32),
             np.zeros((FORCE_BATCH, 3)),
         )
 
@@ -265,7 +269,11 @@ class ForcePredictor:
         self, velocity: np.ndarray, density: np.ndarray, blade_velocity: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Force (T, 3) N and torque (T, 3) N·m of every row of (T, …) consecutive rows, each
-        from its own window of rows (as :meth:`predict` of the rows up to it), in batches."""
+        from its own window of rows (as :meth:`predict` of the rows up to it): a linear model's
+        by :class:`~dozerlab.learn.inference.LinearForceRows`, any other's in batches."""
+        if self._linear is not None:
+            out = self._linear(velocity, density, blade_velocity)
+            return out[:, :3], out[:, 3:6]
         rows = predict_force_rows(
             self.module,
             {"velocity": velocity, "density": density, "blade_velocity": blade_velocity},
