@@ -99,6 +99,23 @@ def test_sweeps_that_run_out_above_the_overlap_limit_are_followed_by_another_rou
     assert largest_movable_overlap(held, r, np.ones(300)) == pytest.approx(s_held.max_overlap)
 
 
+def test_a_caged_grain_ends_the_rounds_once_they_stop_moving_its_overlap():
+    # a grain squeezed between two obstacles 0.1 m apart, its diameter 0.1 m and theirs too
+    x = np.array([[0.0, 0.0, 0.5], [0.09, 0.0, 0.5], [-0.09, 0.0, 0.5]])
+    r = np.full(3, 0.05)
+    stats = project(
+        x,
+        r,
+        np.array([1.0, 0.0, 0.0]),
+        bodies(),
+        iterations=4,
+        relaxation=1.0,
+        overlap_limit=0.1,
+    )
+    assert stats.max_overlap > 0.1  # nothing the sweeps do frees it
+    assert stats.sweeps == 2 * 4  # the second round moved nothing: no third
+
+
 def test_bad_arguments_are_refused():
     x = np.zeros((1, 3))
     with pytest.raises(ValueError, match="projection method"):

@@ -595,6 +595,7 @@ def project(
     m = MARGIN * float(r0.min()) if margin is None else float(margin)
     settings = (int(iterations), method == "gauss_seidel", float(relaxation), float(slop))
     total = ProjectionStats(0.0, 0.0, 0, 0)
+    previous = np.inf
     for _ in range(ROUNDS):
         start = np.array(x, dtype=np.float64)
         total.max_overlap, st, grid = _round(x, r0, w0, m, bodies, *settings, float(tolerance))
@@ -615,6 +616,13 @@ def project(
                 continue
         if total.max_overlap <= overlap_limit:
             break
+        if total.max_overlap > STALLED * previous:
+            # This round left the overlap above the limit where the last round had: a grain
+            # caged by obstacles stays caged, whatever the rounds, and the caller handles it (on hill 1.5 / 0.06 a third round of each of four such steps
+            # left 0.10-0.53 radius as the second had, 4-6 ms a round; BENCHMARKS.md, "A
+            # caged grain's projection ends after two rounds").
+            break
+        previous = total.max_overlap
     return total
 
 
@@ -711,8 +719,13 @@ MARGIN = 0.35
 
 #: Projection rounds at most (each a contact search, sweeps and push-out): a round more runs
 #: only when a fresh search finds a contact overlapping more than the last round's list holds,
-#: or when the sweeps ran out with an overlap above ``overlap_limit``.
+#: or when the sweeps ran out with an overlap above ``overlap_limit`` and below ``STALLED``
+#: times the round's before.
 ROUNDS = 3
+
+#: A round whose sweeps run out above ``overlap_limit`` with the largest overlap above this
+#: share of the last round's ends the projection: the rounds no longer move it.
+STALLED = 0.95
 
 
 def _round(
