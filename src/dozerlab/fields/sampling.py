@@ -41,8 +41,9 @@ _MAX_SPAN = 64  # most bins one particle's bounding box may span per axis
 def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, wvel, wmass):
     """Add every particle's weighted contribution to the bins its bounding box overlaps.
 
-    positions (N, 3), velocities (N, C) (C = 3: one velocity per particle; 3·K: K velocities
-    side by side, accumulated in one pass) and radii, masses (N,) are world-frame float64;
+    positions (N, 3), velocities (a tuple of K arrays (N, 3): K velocities of each particle,
+    accumulated in one pass into C = 3·K channels) and radii, masses (N,) are world-frame
+    float64;
     ``lower`` (3,) is the volume's minimum corner in the world frame, ``size`` (3,) the bin
     size, ``bins`` (3,) the counts. Accumulators: wsum (Nx,Ny,Nz) Σw, wvel (Nx,Ny,Nz,C) Σwv,
     wmass (Nx,Ny,Nz) Σwm.
@@ -50,7 +51,7 @@ def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, w
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
     ov = np.zeros((3, _MAX_SPAN))  # per-axis overlap fraction with each touched bin
-    nc = velocities.shape[1]
+    nk = len(velocities)
     for p in range(positions.shape[0]):
         r = radii[p]
         outside = False
@@ -80,8 +81,10 @@ def _accumulate(positions, velocities, radii, masses, lower, size, bins, wsum, w
                     if w <= 0.0:
                         continue
                     wsum[i, j, k] += w
-                    for c in range(nc):
-                        wvel[i, j, k, c] += w * velocities[p, c]
+                    for kk in range(nk):
+                        v = velocities[kk]
+                        for a in range(3):
+                            wvel[i, j, k, 3 * kk + a] += w * v[p, a]
                     wmass[i, j, k] += w * m
 
 
@@ -184,26 +187,30 @@ class SamplingGrid:
         return x, y, z
 
     def _sums(
-        self, particles: tuple[np.ndarray, ...], tip: np.ndarray
+        self,
+        particles: tuple[np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray],
+        tip: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, C) and Σw·m (Nx, Ny, Nz) of the particles' algorithm-1
-        weights w per bin (:func:`_accumulate`); ``particles`` are the arguments of :meth:`sample`
-        before ``tip``: positions, velocities (N, C), radii, masses."""
-        positions, velocities, radii, masses = (
-            np.ascontiguousarray(a, dtype=np.float64) for a in particles
+        """Σw (Nx, Ny, Nz), Σw·v (Nx, Ny, Nz, 3K) and Σw·m (Nx, Ny, Nz) of the particles'
+        algorithm-1 weights w per bin (:func:`_accumulate`); ``particles`` are the arguments of
+        :meth:`sample` before ``tip``, with a tuple of K velocities: positions, (velocities (N,
+        3), …), radii, masses."""
+        positions, radii, masses = (
+            np.ascontiguousarray(particles[i], dtype=np.float64) for i in (0, 2, 3)
         )
+        velocities = tuple(np.ascontiguousarray(v, dtype=np.float64) for v in particles[1])
         n = positions.shape[0]
         if (
             positions.shape != (n, 3)
-            or velocities.ndim != 2
-            or velocities.shape[0] != n
-            or velocities.shape[1] % 3
+            or not velocities
+            or any(v.shape != (n, 3) for v in velocities)
             or radii.shape != (n,)
             or masses.shape != (n,)
         ):
             raise ValueError(
-                "positions must be (N, 3), velocities (N, 3) or (N, 3K), radii/masses (N,), got "
-                f"{positions.shape}, {velocities.shape}, {radii.shape}, {masses.shape}"
+                "positions must be (N, 3) as the velocities, radii/masses (N,), got "
+                f"{positions.shape}, {[v.shape for v in velocities]}, {radii.shape}, "
+                f"{masses.shape}"
             )
         if n and radii.min() <= 0:
             raise ValueError("particle radii must be > 0")
@@ -212,7 +219,7 @@ class SamplingGrid:
                 f"particles span more than {_MAX_SPAN - 2} bins; use fewer, larger bins"
             )
         wsum = np.zeros(self.bins)
-        wvel = np.zeros((*self.bins, velocities.shape[1]))
+        wvel = np.zeros((*self.bins, 3 * len(velocities)))
         wmass = np.zeros(self.bins)
         lower = np.asarray(tip, dtype=np.float64) + np.asarray(self.lower)
         _accumulate(
@@ -237,7 +244,7 @@ class SamplingGrid:
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         n = positions.shape[0]
         wsum, _, _ = self._sums(
-            (positions, np.zeros((n, 3)), np.asarray(radii).reshape(n), np.ones(n)), tip
+            (positions, (np.zeros((n, 3)),), np.asarray(radii).reshape(n), np.ones(n)), tip
         )
         return wsum
 
@@ -260,7 +267,7 @@ class SamplingGrid:
             velocity (Nx, Ny, Nz, 3) float32, m/s (Σwv/Σw, 0 in empty bins) and
             density (Nx, Ny, Nz) float32, kg/m³ (Σwm / V_bin).
         """
-        wsum, wvel, wmass = self._sums((positions, velocities, radii, masses), tip)
+        wsum, wvel, wmass = self._sums((positions, (velocities,), radii, masses), tip)
         velocity = np.empty(wvel.shape, dtype=np.float32)
         density = np.empty(wsum.shape, dtype=np.float32)
         _finish(wsum, wvel, wmass, 1.0 / self.bin_volume, velocity, density)
@@ -280,8 +287,7 @@ class SamplingGrid:
         float32, each bit for bit what :meth:`sample` gives for it, and the density
         (Nx, Ny, Nz) float32, kg/m³.
         """
-        stacked = np.concatenate([np.asarray(v, dtype=np.float64) for v in velocities], axis=1)
-        wsum, wvel, wmass = self._sums((positions, stacked, radii, masses), tip)
+        wsum, wvel, wmass = self._sums((positions, velocities, radii, masses), tip)
         velocity = np.empty(wvel.shape, dtype=np.float32)
         density = np.empty(wsum.shape, dtype=np.float32)
         _finish(wsum, wvel, wmass, 1.0 / self.bin_volume, velocity, density)

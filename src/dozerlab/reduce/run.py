@@ -259,19 +259,16 @@ def reduce_run(
             sweeps.append(st.sweeps)
             tests.append(st.tests)
             t0 = wallclock.perf_counter()
-            near = state.near(tip)
+            # every grain: the sums skip those whose box misses the volume, so they read the
+            # grains near it in the same order as a gather of them would, without the gather
             if predicted:
                 flow[k] = pred_v[j]
                 (vel[k],), rho[k] = grid.sample_velocities(
-                    state.x[near], (state.v[near],), state.r[near], state.m[near], tip
+                    state.x, (state.v,), state.r, state.m, tip
                 )
             else:  # the fields and the flow in one pass over the grains
                 (vel[k], flow[k]), rho[k] = grid.sample_velocities(
-                    state.x[near],
-                    (state.v[near], state.flow[near]),
-                    state.r[near],
-                    state.m[near],
-                    tip,
+                    state.x, (state.v, state.flow), state.r, state.m, tip
                 )
             # the rows inside the step: their fields (the store's, and the models' history from
             # here on) between the sampled rows either side, as the grains moved between them

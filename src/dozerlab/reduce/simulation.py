@@ -275,17 +275,33 @@ def _settle(
 
 
 @njit(cache=True)
-def _in_box(x, lower, upper):  # pragma: no cover - compiled
-    """(N,) bool: which rows of ``x`` (N, 3) lie in the box [lower, upper] (3,); one pass (the
-    NumPy expression's temporaries cost 0.2 ms a call on the default bed)."""
+def _quiet(x, moving, box_lower, upper, field, weight, lower, size, rest2):  # pragma: no cover
+    """(N,) bool: the grains of ``x`` (N, 3) m at rest (not ``moving``) in the box
+    [box_lower, upper] (3,) m where the field ``field`` (X, Y, Z, 3) m/s, blended by ``weight``
+    (X, Y, Z) kg/m³ (:func:`trilinear`; the volume's corner ``lower`` (3,) m, bins ``size`` (3,)
+    m), is slower than √rest2 m/s. One pass over the grains, one blend of those in the box (the
+    NumPy masks, gather and product around the blend cost 0.1 ms a step on the default bed)."""
     n = x.shape[0]
-    out = np.empty(n, np.bool_)
+    out = np.zeros(n, np.bool_)
+    which = np.empty(n, np.int64)
+    c = 0
     for p in range(n):
-        out[p] = (
-            lower[0] <= x[p, 0] <= upper[0]
-            and lower[1] <= x[p, 1] <= upper[1]
-            and lower[2] <= x[p, 2] <= upper[2]
-        )
+        if (
+            not moving[p]
+            and box_lower[0] <= x[p, 0] <= upper[0]
+            and box_lower[1] <= x[p, 1] <= upper[1]
+            and box_lower[2] <= x[p, 2] <= upper[2]
+        ):
+            which[c] = p
+            c += 1
+    pts = np.empty((c, 3))
+    for q in range(c):
+        for a in range(3):
+            pts[q, a] = x[which[q], a]
+    v = np.empty((c, 3))
+    trilinear(field, weight, lower, size, pts, v)
+    for q in range(c):
+        out[which[q]] = v[q, 0] * v[q, 0] + v[q, 1] * v[q, 1] + v[q, 2] * v[q, 2] < rest2
     return out
 
 
@@ -467,12 +483,6 @@ class ReducedState:
         """Place the blade box (the last body) with its tip at ``tip`` (3,) m."""
         self.bodies.centre[-1] = np.asarray(tip) + self.tip_offset
 
-    def near(self, tip: np.ndarray) -> np.ndarray:
-        """Indices of the grains whose centre is within a radius of the sampling volume at ``tip``."""
-        rmax = float(self.r.max())
-        lower = np.asarray(tip) + np.asarray(self.grid.lower) - rmax
-        return np.flatnonzero(_in_box(self.x, lower, lower + self.extent + 2 * rmax))
-
     def step(
         self,
         velocity: np.ndarray,
@@ -506,13 +516,20 @@ class ReducedState:
         reach = self.blade_half + float(self.r.max()) * 1.5
         box_lower = lower - reach_out * np.array([0.0, 1.0, 0.0])
         # a grain at rest where the field is slower than the rest speed stays at rest
-        quiet = _in_box(self.x, box_lower, upper) & ~self.moving
-        cand = np.flatnonzero(quiet)
-        if cand.size:
-            vq = interpolate(
-                velocity, self.x[cand], lower, np.asarray(self.grid.bin_size), weight=density
-            )
-            quiet[cand] = np.einsum("ij,ij->i", vq, vq) < s.rest_speed * s.rest_speed
+        field = np.ascontiguousarray(velocity, dtype=np.float64)
+        weight = np.ascontiguousarray(density, dtype=np.float64)
+        bin_size = np.asarray(self.grid.bin_size, dtype=np.float64)
+        quiet = _quiet(
+            self.x,
+            self.moving,
+            box_lower,
+            upper,
+            field,
+            weight,
+            lower,
+            bin_size,
+            s.rest_speed * s.rest_speed,
+        )
         inside, near_blade, sel, movable = _select(
             self.x,
             self.moving,
@@ -541,8 +558,8 @@ class ReducedState:
             inside,
             ballistic,
             near_blade,
-            np.asarray(velocity, dtype=np.float64),
-            np.ascontiguousarray(density, dtype=np.float64),
+            field,
+            weight,
             lower,
             np.asarray(self.grid.bin_size, dtype=np.float64),
             top,
