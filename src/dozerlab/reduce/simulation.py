@@ -280,7 +280,8 @@ def _quiet(x, moving, box_lower, upper, field, weight, lower, size, rest2):  # p
     [box_lower, upper] (3,) m where the field ``field`` (X, Y, Z, 3) m/s, blended by ``weight``
     (X, Y, Z) kg/m³ (:func:`trilinear`; the volume's corner ``lower`` (3,) m, bins ``size`` (3,)
     m), is slower than √rest2 m/s. One pass over the grains, one blend of those in the box (the
-    NumPy masks, gather and product around the blend cost 0.1 ms a step on the default bed)."""
+    NumPy masks, gather and product around the blend were a tenth to a sixth of the loop's
+    selection; BENCHMARKS.md, "The loop's selection and sampling without their gathers")."""
     n = x.shape[0]
     out = np.zeros(n, np.bool_)
     which = np.empty(n, np.int64)
