@@ -517,16 +517,16 @@ class ReducedState:
         reach = self.blade_half + float(self.r.max()) * 1.5
         box_lower = lower - reach_out * np.array([0.0, 1.0, 0.0])
         # a grain at rest where the field is slower than the rest speed stays at rest
-        field = np.ascontiguousarray(velocity, dtype=np.float64)
-        weight = np.ascontiguousarray(density, dtype=np.float64)
+        vel64 = np.ascontiguousarray(velocity, dtype=np.float64)
+        rho64 = np.ascontiguousarray(density, dtype=np.float64)
         bin_size = np.asarray(self.grid.bin_size, dtype=np.float64)
         quiet = _quiet(
             self.x,
             self.moving,
             box_lower,
             upper,
-            field,
-            weight,
+            vel64,
+            rho64,
             lower,
             bin_size,
             s.rest_speed * s.rest_speed,
@@ -559,8 +559,8 @@ class ReducedState:
             inside,
             ballistic,
             near_blade,
-            field,
-            weight,
+            vel64,
+            rho64,
             lower,
             np.asarray(self.grid.bin_size, dtype=np.float64),
             top,
