@@ -109,8 +109,8 @@ class PyfuncFieldModel:
         self.history = int(self.module.history)
         self.horizon = int(self.module.horizon)
         self.grid = grid
-        # the ridge's forward compiled: 1.9-2.0 ms a call against the module's 8.5-8.6 ms on
-        # the default grid (BENCHMARKS.md, "The ridge's sums, four outputs a read")
+        # the ridge's forward compiled: 1.63-1.64 ms a call against the module's 8.7-8.9 ms on
+        # the default grid (BENCHMARKS.md, "The ridge's sums, three layers a pass")
         self.ridge = RidgeInference(self.module) if self.module.kind == "ridge" else None
 
     def predict(

@@ -166,6 +166,10 @@ def reduce_run(
         attrs=attrs,
         kind=REDUCED_STORE,
         chunk_steps=int(config["sampling"]["chunk_steps"]),
+        # one chunk a shard: its rows are written at once after the loop and read whole, and
+        # the shards' eight inner chunks took 35-50 of the 80-120 ms of a run's writing
+        # (BENCHMARKS.md, "The reduced store in whole shards")
+        inner_steps=int(config["sampling"]["chunk_steps"]),
         steps=rows,
     ) as writer:
         # NDEM warm-up: the models' history, from the same bed along the same trajectory.

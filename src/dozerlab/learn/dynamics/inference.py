@@ -5,8 +5,8 @@
 float32 round-off, in two compiled passes: the advection, then the stencil's sums with the
 correction and clamps (:func:`correct_rows`). The terms that do not change between calls (the
 position's and bias's, the weights in the order the sums read them) are made once. On the
-default sweep's ridge (momentum channels, three rows a call) a call takes 1.9–2.0 ms against
-8.5–8.6 ms through the module (BENCHMARKS.md, "The ridge's sums, four outputs a read").
+default sweep's ridge (momentum channels, three rows a call) a call takes 1.63–1.64 ms against
+8.7–8.9 ms through the module (BENCHMARKS.md, "The ridge's sums, three layers a pass").
 """
 
 from __future__ import annotations
@@ -93,6 +93,12 @@ def advect_row(rho, vel, shift, scale):  # pragma: no cover - compiled
 #: "The ridge's stencil sums compiled" and "The ridge's sums, four outputs a read").
 BLOCK = 4
 
+#: Floats a vector of the sums holds (AVX-512's 16; AVX2's 8 divide it): each layer's run of
+#: 9C weights is padded with zeros to a whole number of them, so the sums' loop has no scalar
+#: remainder (11 of 315 floats took a seventh of the call; BENCHMARKS.md, "The ridge's sums,
+#: three layers a pass").
+LANES = 16
+
 
 @njit(cache=True, fastmath={"reassoc", "contract"})
 def correct_rows(
@@ -124,8 +130,9 @@ def correct_rows(
     rest: the same everywhere for a given blade velocity) and the fields over their spreads
     (zero in a blank bin). The blank part's sum over a neighbourhood is made once per layer
     and box from ``blank_weight`` (X, boxes, C(H + m), 4m), the stencil's weights summed over
-    the 27 neighbours; the rest from ``weight`` (X, boxes, 4m, 27·C(H + m)), the neighbours
-    (i, j, k) and channels of a bin in the order they lie in the channel-last grid, skipped
+    the 27 neighbours; the rest from ``weight`` (X, boxes, 4m, 3·S), the neighbours (i, j, k)
+    and channels of a bin in the order they lie in the channel-last grid, each layer i's 9·C(H +
+    m) padded with zeros to S, a multiple of :data:`LANES`; skipped
     where a bin's neighbourhood holds nothing. ``const`` (X, 4m, Y, Z) the position's and bias's
     terms, ``ctl_w`` (X, boxes, 3(H + m), 4m) the control's weights times ``cond``, the
     normalised control, ``box_of`` (Y, Z) each bin's box, ``mean`` and ``std`` (C(H + m),) the
@@ -185,18 +192,19 @@ def correct_rows(
                     acc += cond[q] * ctl_w[x, b, q, o]
                 fixed[x, b, o] = acc
     # each padded bin's channels beside those of the two bins above it, laid out (x, z, y, ·):
-    # the 3 × 3 × 3 neighbourhood of bin (x, y, z) is then three runs of `seg` floats, one per
+    # the 3 × 3 × 3 neighbourhood of bin (x, y, z) is then three runs of 3 lines, one per
     # layer x + i at (x + i, z, y), the order of `weight`'s rows (a copy of each bin's
-    # neighbourhood took half the call's time; BENCHMARKS.md)
-    seg = 3 * line
-    lines = np.empty((nx + 2) * nz * py * line, np.float32)
+    # neighbourhood took half the call's time; BENCHMARKS.md); a run is read `span` long, the
+    # floats past its end meeting zero weights (zeros past the last line)
+    span = weight.shape[3] // 3
+    lines = np.zeros((nx + 2) * nz * py * line + span - 3 * line, np.float32)
     for xp in range(nx + 2):
         for z in range(nz):
             for yp in range(py):
                 dst = ((xp * nz + z) * py + yp) * line
                 src = ((xp * py + yp) * pz + z) * ch
                 lines[dst : dst + line] = grid[src : src + line]
-    last = lines.size - seg
+    last = lines.size - span
     sums = np.zeros((BLOCK, outs), np.float32)
     rho = np.empty((m, nx, ny, nz), np.float32)
     vel = np.empty((m, nx, ny, nz, 3), np.float32)
@@ -222,37 +230,93 @@ def correct_rows(
                         s10 = s11 = s12 = s13 = np.float32(0.0)
                         s20 = s21 = s22 = s23 = np.float32(0.0)
                         s30 = s31 = s32 = s33 = np.float32(0.0)
-                        for i in range(3):
-                            at = (((x + i) * nz + z) * py + y0) * line
-                            # views: an index computed in the loop costs a check for negative
-                            # values at each read, and the sums were not vectorised (7x slower)
-                            w0 = weight[x, b, o, i * seg : (i + 1) * seg]
-                            w1 = weight[x, b, o + 1, i * seg : (i + 1) * seg]
-                            w2 = weight[x, b, o + 2, i * seg : (i + 1) * seg]
-                            w3 = weight[x, b, o + 3, i * seg : (i + 1) * seg]
-                            l0 = lines[at : at + seg]
-                            l1 = lines[min(at + line, last) :]
-                            l2 = lines[min(at + 2 * line, last) :]
-                            l3 = lines[min(at + 3 * line, last) :]
-                            for t in range(seg):
-                                a0, a1, a2, a3 = l0[t], l1[t], l2[t], l3[t]
-                                c0, c1, c2, c3 = w0[t], w1[t], w2[t], w3[t]
-                                s00 += a0 * c0
-                                s01 += a0 * c1
-                                s02 += a0 * c2
-                                s03 += a0 * c3
-                                s10 += a1 * c0
-                                s11 += a1 * c1
-                                s12 += a1 * c2
-                                s13 += a1 * c3
-                                s20 += a2 * c0
-                                s21 += a2 * c1
-                                s22 += a2 * c2
-                                s23 += a2 * c3
-                                s30 += a3 * c0
-                                s31 += a3 * c1
-                                s32 += a3 * c2
-                                s33 += a3 * c3
+                        # the three layers' runs in one loop: each sum is reduced across
+                        # its vector once, not once a layer (a seventh of the call;
+                        # BENCHMARKS.md, "The ridge's sums, three layers a pass"). Views:
+                        # an index computed in the loop costs a check for negative values
+                        # at each read, and the sums were not vectorised (7x slower)
+                        at = ((x * nz + z) * py + y0) * line
+                        w00 = weight[x, b, o, :span]
+                        w10 = weight[x, b, o + 1, :span]
+                        w20 = weight[x, b, o + 2, :span]
+                        w30 = weight[x, b, o + 3, :span]
+                        l00 = lines[at : at + span]
+                        l10 = lines[min(at + line, last) :]
+                        l20 = lines[min(at + 2 * line, last) :]
+                        l30 = lines[min(at + 3 * line, last) :]
+                        at = (((x + 1) * nz + z) * py + y0) * line
+                        w01 = weight[x, b, o, span : 2 * span]
+                        w11 = weight[x, b, o + 1, span : 2 * span]
+                        w21 = weight[x, b, o + 2, span : 2 * span]
+                        w31 = weight[x, b, o + 3, span : 2 * span]
+                        l01 = lines[at : at + span]
+                        l11 = lines[min(at + line, last) :]
+                        l21 = lines[min(at + 2 * line, last) :]
+                        l31 = lines[min(at + 3 * line, last) :]
+                        at = (((x + 2) * nz + z) * py + y0) * line
+                        w02 = weight[x, b, o, 2 * span :]
+                        w12 = weight[x, b, o + 1, 2 * span :]
+                        w22 = weight[x, b, o + 2, 2 * span :]
+                        w32 = weight[x, b, o + 3, 2 * span :]
+                        l02 = lines[at : at + span]
+                        l12 = lines[min(at + line, last) :]
+                        l22 = lines[min(at + 2 * line, last) :]
+                        l32 = lines[min(at + 3 * line, last) :]
+                        for t in range(span):
+                            a0, a1, a2, a3 = l00[t], l10[t], l20[t], l30[t]
+                            c0, c1, c2, c3 = w00[t], w10[t], w20[t], w30[t]
+                            s00 += a0 * c0
+                            s01 += a0 * c1
+                            s02 += a0 * c2
+                            s03 += a0 * c3
+                            s10 += a1 * c0
+                            s11 += a1 * c1
+                            s12 += a1 * c2
+                            s13 += a1 * c3
+                            s20 += a2 * c0
+                            s21 += a2 * c1
+                            s22 += a2 * c2
+                            s23 += a2 * c3
+                            s30 += a3 * c0
+                            s31 += a3 * c1
+                            s32 += a3 * c2
+                            s33 += a3 * c3
+                            a0, a1, a2, a3 = l01[t], l11[t], l21[t], l31[t]
+                            c0, c1, c2, c3 = w01[t], w11[t], w21[t], w31[t]
+                            s00 += a0 * c0
+                            s01 += a0 * c1
+                            s02 += a0 * c2
+                            s03 += a0 * c3
+                            s10 += a1 * c0
+                            s11 += a1 * c1
+                            s12 += a1 * c2
+                            s13 += a1 * c3
+                            s20 += a2 * c0
+                            s21 += a2 * c1
+                            s22 += a2 * c2
+                            s23 += a2 * c3
+                            s30 += a3 * c0
+                            s31 += a3 * c1
+                            s32 += a3 * c2
+                            s33 += a3 * c3
+                            a0, a1, a2, a3 = l02[t], l12[t], l22[t], l32[t]
+                            c0, c1, c2, c3 = w02[t], w12[t], w22[t], w32[t]
+                            s00 += a0 * c0
+                            s01 += a0 * c1
+                            s02 += a0 * c2
+                            s03 += a0 * c3
+                            s10 += a1 * c0
+                            s11 += a1 * c1
+                            s12 += a1 * c2
+                            s13 += a1 * c3
+                            s20 += a2 * c0
+                            s21 += a2 * c1
+                            s22 += a2 * c2
+                            s23 += a2 * c3
+                            s30 += a3 * c0
+                            s31 += a3 * c1
+                            s32 += a3 * c2
+                            s33 += a3 * c3
                         sums[0, o : o + 4] = (s00, s01, s02, s03)
                         sums[1, o : o + 4] = (s10, s11, s12, s13)
                         sums[2, o : o + 4] = (s20, s21, s22, s23)
@@ -304,7 +368,11 @@ class RidgeInference:
             pos = model.coords.cpu().permute(1, 2, 3, 0)
             # weight row c·27 + n (n = 9i + 3j + k) → (layer, box, output, n·C + c)
             stencil = w[:, :, :d].reshape(nx, len(boxes), ch, 27, outs)
-            weight = stencil.permute(0, 1, 4, 3, 2).reshape(nx, len(boxes), outs, d)
+            run = 9 * ch  # a layer's neighbours and channels
+            span = -(-run // LANES) * LANES
+            weight = torch.zeros(nx, len(boxes), outs, 3, span)
+            weight[..., :run] = stencil.permute(0, 1, 4, 3, 2).reshape(nx, len(boxes), outs, 3, run)
+            weight = weight.reshape(nx, len(boxes), outs, 3 * span)
             const = torch.zeros(nx, outs, ny, nz)
             box_of = np.zeros((ny, nz), np.int64)
             for k, (y0, y1, z0, z1) in enumerate(boxes):
