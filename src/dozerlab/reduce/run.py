@@ -166,8 +166,8 @@ def reduce_run(
         attrs=attrs,
         kind=REDUCED_STORE,
         chunk_steps=int(config["sampling"]["chunk_steps"]),
-        # one chunk a shard: its rows are written at once after the loop and read whole, and
-        # the shards' eight inner chunks took 35-50 of the 80-120 ms of a run's writing
+        # one chunk a shard: its rows are written at once after the loop and read whole; with
+        # eight inner chunks a shard a run's 346 rows took 78-121 ms to write, with one 45-52 ms
         # (BENCHMARKS.md, "The reduced store in whole shards")
         inner_steps=int(config["sampling"]["chunk_steps"]),
         steps=rows,
