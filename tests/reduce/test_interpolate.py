@@ -73,3 +73,18 @@ def test_shapes_are_checked():
         interpolate(np.zeros((2, 2)), np.zeros((1, 3)), LOWER, SIZE)
     with pytest.raises(ValueError, match="weight must have shape"):
         interpolate(np.zeros((*BINS, 3)), np.zeros((1, 3)), LOWER, SIZE, weight=np.ones((2, 2, 2)))
+
+
+@pytest.mark.parametrize("channels", [1, 2, 4, 7])
+@pytest.mark.parametrize("weighted", [False, True])
+def test_each_channel_is_blended_alone_whatever_their_count(channels, weighted):
+    # the blend runs three channels at a time: any other count gives each channel what it
+    # gives alone, to the bit
+    rng = np.random.default_rng(channels)
+    field = rng.normal(size=(*BINS, channels))
+    rho = rng.uniform(0, 2600, BINS) if weighted else None
+    pts = rng.uniform(LOWER - 0.1, LOWER + 0.6, size=(300, 3))
+    out = interpolate(field, pts, LOWER, SIZE, weight=rho)
+    assert out.shape == (300, channels)
+    for c in range(channels):
+        np.testing.assert_array_equal(out[:, c], interpolate(field[..., c], pts, LOWER, SIZE, rho))

@@ -216,19 +216,22 @@ def test_ripples_below_the_quiet_share_wake_no_contacts_and_the_pile_still_conve
     assert left_quiet == pytest.approx(left_every, abs=tolerance)
 
 
-@pytest.mark.parametrize("obstacles", ["every third", "the lower half", "none, heaped"])
+@pytest.mark.parametrize(
+    "obstacles", ["every third", "the lower half", "none, heaped", "every third, heaped"]
+)
 def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles(obstacles):
     # obstacles scattered, or filling whole cells (as the ring around a step's movers does),
-    # whose pairs with each other the scan skips cell by cell; or grains heaped into each other,
-    # more pairs than the first list has room for
+    # whose pairs with each other the scan skips cell by cell and sphere by sphere; or grains
+    # heaped into each other, more pairs than the first list has room for
     x, r, _ = pile(150, seed=7)
-    if obstacles == "none, heaped":
+    if obstacles.endswith("heaped"):
         x = x[0] + 0.15 * (x - x[0])
-        w = np.ones(150)
-    elif obstacles == "every third":
+    if obstacles.startswith("every third"):
         w = np.where(np.arange(150) % 3 == 0, 0.0, 1.0)
-    else:
+    elif obstacles == "the lower half":
         w = np.where(x[:, 2] < np.median(x[:, 2]), 0.0, 1.0)
+    else:
+        w = np.ones(150)
     reach = r + 0.01
     d = np.linalg.norm(x[:, None] - x[None], axis=2)
     want = {
@@ -239,7 +242,9 @@ def test_pairs_sorted_finds_every_pair_within_reach_but_those_of_two_obstacles(o
     perm, *_, pa, pb = cell_sorted(x, r, w, 0.11, reach)  # cells >= the largest reach sum
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in zip(pa, pb, strict=True)}
     assert got == want and len(pa) == len(want)
-    assert (len(want) > 8 * 150 + 16) == (obstacles == "none, heaped")
+    assert (len(want) > 8 * 150 + 16) == obstacles.endswith("heaped")
+    # in memory order, as the sweeps walk them: by the first sphere's slot, each after the other
+    assert np.all(np.diff(pa) >= 0) and np.all(pb > pa)
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -200,37 +200,49 @@ def _select(
     n = x.shape[0]
     inside = np.empty(n, np.bool_)
     near = np.empty(n, np.bool_)
-    cells = np.empty((n, 3), np.int64)
+    d0, d1, d2 = dims[0], dims[1], dims[2]
+    # the box tests, cell and mark of a grain in scalars and one flat index: with three cell
+    # indices a grain and the bounds read from their arrays, a step's selection on the trench
+    # took 0.42 ms against 0.24 (BENCHMARKS.md, "The loop's passes over the grains, lighter")
+    cells = np.empty(n, np.int64)
     # 3: a mover's cell; 2: its neighbour (movable grains); 1: their neighbours (obstacles)
-    marks = np.zeros((dims[0], dims[1], dims[2]), np.int8)
+    marks = np.zeros((d0, d1, d2), np.int8)
+    flat = marks.reshape(-1)
     sources = np.empty((n, 3), np.int64)  # the movers' cells, each once
     ns = 0
+    bl0, bl1, bl2 = box_lower[0], box_lower[1], box_lower[2]
+    bu0, bu1, bu2 = box_upper[0], box_upper[1], box_upper[2]
+    ce0, ce1, ce2 = centre[0], centre[1], centre[2]
+    re0, re1, re2 = reach[0], reach[1], reach[2]
+    lo0, lo1, lo2 = lo[0], lo[1], lo[2]
     for p in range(n):
-        ins = True
-        nb = True
-        for a in range(3):
-            v = x[p, a]
-            ins = ins and box_lower[a] <= v <= box_upper[a]
-            nb = nb and abs(v - centre[a]) <= reach[a]
-            cells[p, a] = min(max(int((v - lo[a]) / cell), 0), dims[a] - 1)
+        v0, v1, v2 = x[p, 0], x[p, 1], x[p, 2]
+        ins = (bl0 <= v0) & (v0 <= bu0) & (bl1 <= v1) & (v1 <= bu1) & (bl2 <= v2) & (v2 <= bu2)
+        nb = (abs(v0 - ce0) <= re0) & (abs(v1 - ce1) <= re1) & (abs(v2 - ce2) <= re2)
+        c0 = min(max(int((v0 - lo0) / cell), 0), d0 - 1)
+        c1 = min(max(int((v1 - lo1) / cell), 0), d1 - 1)
+        c2 = min(max(int((v2 - lo2) / cell), 0), d2 - 1)
+        c = (c0 * d1 + c1) * d2 + c2
+        cells[p] = c
         inside[p], near[p] = ins, nb
-        c0, c1, c2 = cells[p, 0], cells[p, 1], cells[p, 2]
-        if ((ins and not quiet[p]) or nb or moving[p]) and marks[c0, c1, c2] < 3:
-            marks[c0, c1, c2] = 3
-            sources[ns] = c0, c1, c2
+        if ((ins and not quiet[p]) or nb or moving[p]) and flat[c] < 3:
+            flat[c] = 3
+            sources[ns, 0], sources[ns, 1], sources[ns, 2] = c0, c1, c2
             ns += 1
     for s in range(ns):
         c0, c1, c2 = sources[s, 0], sources[s, 1], sources[s, 2]
-        for i in range(max(c0 - 2, 0), min(c0 + 3, dims[0])):
-            for j in range(max(c1 - 2, 0), min(c1 + 3, dims[1])):
-                for k in range(max(c2 - 2, 0), min(c2 + 3, dims[2])):
-                    inner = abs(i - c0) <= 1 and abs(j - c1) <= 1 and abs(k - c2) <= 1
+        for i in range(max(c0 - 2, 0), min(c0 + 3, d0)):
+            inner_i = abs(i - c0) <= 1
+            for j in range(max(c1 - 2, 0), min(c1 + 3, d1)):
+                inner_ij = inner_i and abs(j - c1) <= 1
+                for k in range(max(c2 - 2, 0), min(c2 + 3, d2)):
+                    inner = inner_ij and abs(k - c2) <= 1
                     marks[i, j, k] = max(marks[i, j, k], 2 if inner else 1)
     count = 0
     chosen = np.empty(n, np.int64)
     movable = np.empty(n, np.bool_)
     for p in range(n):
-        mark = marks[cells[p, 0], cells[p, 1], cells[p, 2]]
+        mark = flat[cells[p]]
         if mark > 0:
             chosen[count] = p
             movable[count] = mark >= 2
@@ -341,28 +353,28 @@ def _advect(
     """
     n = sel.shape[0]
     x0 = np.empty((n, 3))
-    vs = np.zeros((n, 3))
+    xs = np.empty((n, 3))
+    vs = np.empty((n, 3))
     ins = np.empty(n, np.bool_)
     bal = np.empty(n, np.bool_)
     mover = np.empty(n, np.bool_)
     inv_m = np.empty(n)
+    # the carried grains' positions gathered in the pass that reads the grains, and xs made
+    # once: with the blend's sums in registers, a step's advection on the trench took
+    # 0.36-0.38 ms against 0.46-0.51 (BENCHMARKS.md, "The loop's passes over the grains, lighter")
+    pts = np.empty((n, 3))
     carried = 0
     for q in range(n):
         p = sel[q]
         for a in range(3):
             x0[q, a] = x[p, a]
         ins[q], bal[q] = inside[p], ballistic[p]
-        carried += ins[q]
-    pts = np.empty((carried, 3))
-    c = 0
-    for q in range(n):
         if ins[q]:
             for a in range(3):
-                pts[c, a] = x0[q, a]
-            c += 1
+                pts[carried, a] = x0[q, a]
+            carried += 1
     out = np.empty((carried, 3))
-    trilinear(field, weight, lower, size, pts, out)
-    xs = x0.copy()
+    trilinear(field, weight, lower, size, pts[:carried], out)
     c = 0
     for q in range(n):
         p = sel[q]
@@ -379,13 +391,16 @@ def _advect(
             # and behind the blade lost 0.02-0.05 of the smoothed surface against the twin's
             # 0.01-0.03 with NDEM's own fields; BENCHMARKS.md, "The pile's crest over the blade's
             # top")
-            if xs[q, 2] > top and (vs[q, 2] <= 0.0 or xs[q, 2] > crest_top):
+            if x0[q, 2] > top and (vs[q, 2] <= 0.0 or x0[q, 2] > crest_top):
                 vs[q, 2] = v[p, 2] + h * gravity[2]
         elif bal[q]:
             for a in range(3):
                 vs[q, a] = v[p, a] + h * gravity[a]
+        else:
+            for a in range(3):
+                vs[q, a] = 0.0
         for a in range(3):
-            xs[q, a] += h * vs[q, a]
+            xs[q, a] = x0[q, a] + h * vs[q, a]
         mover[q] = ins[q] or bal[q] or near_blade[p] or moving[p]
         # the bed at rest below the sampling volume holds like the ground: yielding with its
         # own mass, it was packed ever deeper under the pile (grains moved from 0.3 m below the
@@ -726,7 +741,10 @@ def compile_kernels(grid: SamplingGrid) -> None:
         project(
             deep.copy(), np.full(2, 0.03), np.ones(2), state.bodies, iterations=1, method=method
         )
-    grid.sample_velocities(x, (x, x), np.full(2, 0.03), np.ones(2), np.zeros(3))
+    # one velocity (NDEM's warm-up rows, and the loops whose model reads its own predictions)
+    # and two: compiled in a fresh clone's first loop, the one-velocity pass took 0.7 s of it
+    for velocities in ((x,), (x, x)):
+        grid.sample_velocities(x, velocities, np.full(2, 0.03), np.ones(2), np.zeros(3))
 
 
 def bodies_of(world: Any, blade: int) -> Bodies:
