@@ -108,12 +108,12 @@ def interpolate(
     channels = f.shape[3]
     # three channels a blend, the last group padded with zeros (each channel is blended alone)
     groups = -(-channels // 3)
-    padded = np.zeros((*f.shape[:3], 3 * groups))
-    padded[..., :channels] = f
+    if channels < 3 * groups:
+        f = np.concatenate([f, np.zeros((*f.shape[:3], 3 * groups - channels))], axis=3)
     out = np.empty((pts.shape[0], 3 * groups))
     lo, size = np.asarray(lower, dtype=np.float64), np.asarray(bin_size, dtype=np.float64)
     for g in range(groups):
-        part = np.empty((pts.shape[0], 3))
-        trilinear(np.ascontiguousarray(padded[..., 3 * g : 3 * g + 3]), w, lo, size, pts, part)
+        part = out if groups == 1 else np.empty((pts.shape[0], 3))
+        trilinear(np.ascontiguousarray(f[..., 3 * g : 3 * g + 3]), w, lo, size, pts, part)
         out[:, 3 * g : 3 * g + 3] = part
     return out[:, 0] if scalar else out[:, :channels]
