@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -345,3 +348,49 @@ def test_a_loops_settings_lift_the_crest_and_steer_only_for_the_models_named():
     assert settings.for_model("ridge") == dataclasses.replace(settings, crest_bins=0.0)
     assert settings.steers("ridge") and not settings.steers("replay")
     assert not dataclasses.replace(settings, density_gain=0.0).steers("ridge")
+
+
+def test_compile_kernels_leaves_nothing_for_the_loop_to_compile_inside_its_clock(tmp_path):
+    # a fresh process, as a reduce job: after compile_kernels (which steps and projects), NDEM's
+    # sampled rows (one velocity a grain) and the loop's samplings (one velocity, or the
+    # velocity and the flow) ask no kernel for a type it was not compiled for
+    script = tmp_path / "loop.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import numpy as np
+            from numba.core.registry import CPUDispatcher
+
+            from dozerlab.fields import sampling
+            from dozerlab.fields.sampling import SamplingGrid
+            from dozerlab.reduce import interpolate, projection, simulation
+
+            def compiled():
+                modules = (sampling, simulation, projection, interpolate)
+                return {
+                    (m.__name__, name): len(f.signatures)
+                    for m in modules
+                    for name, f in vars(m).items()
+                    if isinstance(f, CPUDispatcher)
+                }
+
+            grid = SamplingGrid((4, 3, 2), (0.1, 0.1, 0.1), (0.0, -0.15, -0.05))
+            simulation.compile_kernels(grid)
+            before = compiled()
+            rng = np.random.default_rng(0)
+            x = rng.uniform([0.0, -0.1, 0.02], [0.4, 0.1, 0.2], (40, 3))
+            v, r, m = rng.normal(size=(40, 3)), np.full(40, 0.02), np.full(40, 0.1)
+            tip = np.zeros(3)
+            grid.sample(x, v, r, m, tip)
+            grid.sample_velocities(x, (v,), r, m, tip)
+            grid.sample_velocities(x, (v, v), r, m, tip)
+            after = compiled()
+            new = {k: after[k] - before[k] for k in after if after[k] != before[k]}
+            print("new signatures:", new)
+            """
+        )
+    )
+    out = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, check=True, timeout=600
+    )
+    assert "new signatures: {}" in out.stdout, out.stdout + out.stderr
