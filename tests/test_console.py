@@ -110,3 +110,36 @@ def test_a_dry_run_keeps_snakemakes_console():
         assert not console.install(logger, ColorizingTextHandler) and old in logger.handlers
     finally:
         logger.removeHandler(old)
+
+
+def test_the_job_clock_adds_up_each_rules_job_time_and_how_busy_the_cores_were():
+    clock = console.JobClock()
+    assert clock.summary(60.0) is None and clock.metrics() == {}
+
+    def at(t, msg, **extra):
+        rec = record(msg, **extra)
+        rec.created = t
+        clock.handle(rec)
+
+    at(0.0, "Provided cores: 2", event=LogEvent.RESOURCES_INFO, cores=2)
+    at(0.0, "", event=LogEvent.JOB_INFO, jobid=1, rule_name="simulate", threads=1)
+    at(1.0, "", event=LogEvent.JOB_INFO, jobid=2, rule_name="simulate", threads=1)
+    at(30.0, "", event=LogEvent.JOB_FINISHED, job_id=1)
+    at(30.0, "", event=LogEvent.JOB_INFO, jobid=3, rule_name="train", threads=2)
+    at(41.0, "", event=LogEvent.JOB_FINISHED, job_id=2)
+    at(50.0, "", event=LogEvent.JOB_INFO, jobid=4, rule_name="train", threads=1)
+    at(55.0, "", event=LogEvent.JOB_ERROR, jobid=4, rule_name="train")  # a failure is no time
+    at(60.0, "", event=LogEvent.JOB_FINISHED, job_id=3)
+    at(60.0, "", event=LogEvent.JOB_INFO, jobid=5, rule_name="all", threads=1)
+    at(60.0, "", event=LogEvent.JOB_FINISHED, job_id=5)
+    assert clock.metrics() == {
+        "job_seconds/simulate": 70.0,
+        "job_seconds/train": 30.0,
+        "job_seconds/all": 0.0,  # the target rule
+        "job_seconds_total": 100.0,
+    }
+    # 30 + 40 s on one thread and 30 s on two: 130 thread-seconds, 2 cores for 65 s
+    assert clock.summary(65.0) == (
+        "  jobs      100 s of job time on 2 cores (100 % busy), by rule (jobs): simulate 70 s (2), "
+        "train 30 s (1)"
+    )

@@ -100,6 +100,16 @@ def test_the_console_is_one_line_per_job_start_and_end_and_a_summary(quick):
     assert re.search(r"done   all  \(\d+ s\)  \[(\d+)/\1, 100%\]$", console, re.M), console[-3000:]
     assert "report    results/report/index.html" in console
     assert f"MLflow: {jobs} job runs under workflow run" in console
+    # where the time went: the jobs' time by rule, the largest first, and how busy the cores were
+    clock = re.search(
+        r"^  jobs      (\d+) s of job time on 2 cores \((\d+) % busy\), by rule \(jobs\): (.*)$",
+        console,
+        re.M,
+    )
+    assert clock, console[-3000:]
+    shares = dict(re.findall(r"(\w+) \d+ s \((\d+)\)", clock[3]))
+    assert shares["simulate"] == str(len(POINTS)) and shares["train"] == str(len(MODELS))
+    assert 0 < int(clock[2]) <= 100
     # Snakemake's own log keeps what the console leaves out
     (log,) = (quick / ".snakemake" / "log").glob("*.snakemake.log")
     assert "python -m dozerlab simulate" in log.read_text()
@@ -269,6 +279,9 @@ def test_mlflow_holds_one_parent_and_a_child_per_job(quick):
     assert {f"force_x_rel_rmse/{m}" for m in MODELS} < set(parent.data.metrics)
     assert {f"reduced_{m}/height_accuracy" for m in REDUCED} < set(parent.data.metrics)
     assert parent.data.metrics["wall_seconds"] > 0
+    # and the jobs' time by rule: where it went
+    assert parent.data.metrics["job_seconds/simulate"] > 0
+    assert parent.data.metrics["job_seconds_total"] > parent.data.metrics["job_seconds/simulate"]
     # every trained model is registered by kind: models:/NAME/VERSION
     query = f"tags.`dozerlab.parent_run_id` = '{parent.info.run_id}'"
     names = {v.name for v in client.search_model_versions(query)}

@@ -11,6 +11,9 @@ handler with one that writes::
     23:01:31  FAILED train model=unet  (job 12): see logs/train/unet.log
         (the last lines of that log)
 
+and a :class:`JobClock` on the same logger adds up the jobs' time by rule for the closing
+summary and the parent MLflow run: where a sweep's time went, and how busy its cores were.
+
 Snakemake's own log (``.snakemake/log/*.snakemake.log``, named at the end of the run) keeps
 everything its console would have said, shell commands included; each job's output is in the
 rule's ``log:`` file. Dry runs (``-n``) and ``--verbose`` keep Snakemake's console.
@@ -22,6 +25,7 @@ import logging
 import re
 import sys
 import time
+from collections import Counter
 from collections.abc import Mapping
 from typing import Any, TextIO
 
@@ -122,6 +126,67 @@ class ConsoleFormatter(logging.Formatter):
         return FAILED_COMMAND.sub(
             "The job's command (in the Snakemake log) returned non-zero", text
         )
+
+
+class JobClock(logging.Handler):
+    """The jobs' time by rule, from Snakemake's log records: a job runs from its ``job_info``
+    (started, or submitted to a cluster) to its ``job_finished``, and takes its ``threads`` of
+    the cores Snakemake was given (``resources_info``). Jobs that fail are not counted. Add it
+    to Snakemake's logger; it writes nothing."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.running: dict[int, tuple[str, float, int]] = {}  # job id: (rule, start, threads)
+        self.seconds: dict[str, float] = {}
+        self.jobs: Counter[str] = Counter()
+        self.thread_seconds = 0.0
+        self.cores: int | None = None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        event = _event(record)
+        extra: dict[str, Any] = vars(record)
+        if event == "job_info":
+            threads = extra.get("threads")
+            self.running[int(extra["jobid"])] = (
+                str(extra["rule_name"]),
+                record.created,
+                int(threads) if isinstance(threads, int) and threads > 0 else 1,
+            )
+        elif event == "job_finished" and int(extra["job_id"]) in self.running:
+            rule, began, threads = self.running.pop(int(extra["job_id"]))
+            self.seconds[rule] = self.seconds.get(rule, 0.0) + record.created - began
+            self.jobs[rule] += 1
+            self.thread_seconds += (record.created - began) * threads
+        elif event == "job_error":
+            self.running.pop(int(extra["jobid"]), None)
+        elif event == "resources_info" and isinstance(extra.get("cores"), int):
+            self.cores = int(extra["cores"])
+
+    def metrics(self) -> dict[str, float]:
+        """``job_seconds/<rule>`` (s, the rule's jobs added up) and ``job_seconds_total``
+        (beside the parent run's ``wall_seconds``); none before a job has finished."""
+        if not self.jobs:
+            return {}
+        out = {f"job_seconds/{rule}": s for rule, s in self.seconds.items()}
+        return out | {"job_seconds_total": sum(self.seconds.values())}
+
+    def summary(self, wall_s: float) -> str | None:
+        """One line for the closing summary: the job time, on how many cores in ``wall_s``
+        seconds and how busy they were, then each rule's share, the largest first; None
+        before a job has finished."""
+        if not self.jobs:
+            return None
+        total = sum(self.seconds.values())
+        head = f"  jobs      {total:.0f} s of job time"
+        if self.cores and wall_s > 0:
+            busy = self.thread_seconds / (self.cores * wall_s)
+            head += f" on {self.cores} core{'s' * (self.cores > 1)} ({100 * busy:.0f} % busy)"
+        rules = ", ".join(
+            f"{rule} {s:.0f} s ({self.jobs[rule]})"
+            for rule, s in sorted(self.seconds.items(), key=lambda kv: -kv[1])
+            if s >= 0.5  # not the target rule's instant job
+        )
+        return f"{head}, by rule (jobs): {rules}"
 
 
 class ConsoleHandler(logging.StreamHandler):

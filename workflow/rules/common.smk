@@ -24,6 +24,9 @@ STARTED = time.time()
 # .snakemake/log keeps its full output, shell commands included. Dry runs (-n) and --verbose
 # keep Snakemake's.
 console.install(logger, ColorizingTextHandler)
+# The jobs' time by rule, for the closing summary and the parent MLflow run.
+JOB_CLOCK = console.JobClock()
+logger.addHandler(JOB_CLOCK)
 
 # Validate before any job runs (before onstart, so no MLflow run is started): a bad value stops
 # here with the files, its field name and allowed range. Snakemake's YAML loader keeps the last
@@ -366,15 +369,18 @@ def end_parent_run(status, log):
     cmd = [sys.executable, "-m", "dozerlab", "mlflow-end", run_id, "--status", status]
     for path in artifacts:
         cmd += ["--artifact", path]
-    for key, value in headline.metrics(RESULTS, config).items():
+    for key, value in (headline.metrics(RESULTS, config) | JOB_CLOCK.metrics()).items():
         cmd += ["--metric", f"{key}={value!r}"]
     subprocess.run(cmd, check=status != "FINISHED")
 
 
 def print_summary():
-    """The closing lines of a run that built the sweep: wall time, report, best models, the
-    reduced simulation's targets met and missed (dozerlab.headline)."""
-    for line in headline.summary_lines(RESULTS, config, time.time() - STARTED):
+    """The closing lines of a run that built the sweep: wall time and the jobs' time by rule,
+    report, best models, the reduced simulation's targets met and missed (dozerlab.headline)."""
+    wall = time.time() - STARTED
+    lines = headline.summary_lines(RESULTS, config, wall)
+    jobs = JOB_CLOCK.summary(wall)
+    for line in lines[:1] + ([jobs] if jobs else []) + lines[1:]:
         print(line, file=sys.stderr)
 
 
