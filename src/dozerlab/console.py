@@ -41,6 +41,8 @@ QUIET_MESSAGES = (
 FAILED_COMMAND = re.compile(r"Command '.*' returned non-zero", re.DOTALL)
 #: Lines of a failed job's log shown under its FAILED line (its error is at the end).
 LOG_TAIL_LINES = 3
+#: A rule whose jobs took less (s) took no time worth a line: the target rule's instant job.
+INSTANT_S = 0.5
 
 
 def _event(record: logging.LogRecord) -> str:
@@ -143,6 +145,12 @@ class JobClock(logging.Handler):
         self.cores: int | None = None
 
     def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self._count(record)
+        except Exception:  # logging's contract: report, never raise into the workflow
+            self.handleError(record)
+
+    def _count(self, record: logging.LogRecord) -> None:
         event = _event(record)
         extra: dict[str, Any] = vars(record)
         if event == "job_info":
@@ -163,12 +171,18 @@ class JobClock(logging.Handler):
             self.cores = int(extra["cores"])
 
     def metrics(self) -> dict[str, float]:
-        """``job_seconds/<rule>`` (s, the rule's jobs added up) and ``job_seconds_total``
-        (beside the parent run's ``wall_seconds``); none before a job has finished."""
+        """``job_seconds/<rule>`` (s, the rule's jobs added up; not a rule of instant jobs
+        such as the target rule) and ``job_seconds_total`` (beside the parent run's
+        ``wall_seconds``); none before a job has finished."""
         if not self.jobs:
             return {}
-        out = {f"job_seconds/{rule}": s for rule, s in self.seconds.items()}
+        out = {f"job_seconds/{rule}": s for rule, s in self._timed()}
         return out | {"job_seconds_total": sum(self.seconds.values())}
+
+    def _timed(self) -> list[tuple[str, float]]:
+        """(rule, seconds), the largest first, without the rules whose jobs took no time."""
+        ranked = sorted(self.seconds.items(), key=lambda kv: -kv[1])
+        return [(rule, s) for rule, s in ranked if s >= INSTANT_S]
 
     def summary(self, wall_s: float) -> str | None:
         """One line for the closing summary: the job time, on how many cores in ``wall_s``
@@ -181,11 +195,7 @@ class JobClock(logging.Handler):
         if self.cores and wall_s > 0:
             busy = self.thread_seconds / (self.cores * wall_s)
             head += f" on {self.cores} core{'s' * (self.cores > 1)} ({100 * busy:.0f} % busy)"
-        rules = ", ".join(
-            f"{rule} {s:.0f} s ({self.jobs[rule]})"
-            for rule, s in sorted(self.seconds.items(), key=lambda kv: -kv[1])
-            if s >= 0.5  # not the target rule's instant job
-        )
+        rules = ", ".join(f"{rule} {s:.0f} s ({self.jobs[rule]})" for rule, s in self._timed())
         return f"{head}, by rule (jobs): {rules}"
 
 
