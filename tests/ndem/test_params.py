@@ -39,6 +39,7 @@ def test_from_config_takes_the_given_fields_and_converts_types():
         ({"density": -1.0}, "density must be > 0 kg/m³"),
         ({"slabs": 0}, "slabs must be >= 1"),
         ({"wake_load": 0.5}, "wake_load must be >= 1, got 0.5"),
+        ({"sleeper_compliance": 0.9}, "sleeper_compliance must be >= 1, got 0.9"),
         ({"tolerance": -1e-3}, "tolerance must be a finite number >= 0"),
         ({"wall_friction": float("inf")}, "wall_friction must be a finite number >= 0"),
         ({"gravity": [0.0, np.nan, -9.81]}, "gravity must be 3 finite numbers"),

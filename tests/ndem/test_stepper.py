@@ -378,6 +378,37 @@ def test_active_zone_wakes_a_sleeper_whose_load_passes_wake_load_times_what_hold
     assert w.state.public(w.state.awake).tolist() == [wakes, True]
 
 
+@pytest.mark.parametrize("relinearize_above", [0.3, 0.0])
+def test_a_grain_on_a_sleeper_rests_on_a_contact_sleeper_compliance_times_as_compliant(
+    relinearize_above,
+):
+    # Hertz under the same weight: k·δ^(3/2) = W, with the compliance c times as large
+    # δ grows by c^(2/3); the step's relinearisation rounds (every step at 0) keep the factor
+    def overlap(compliance: float) -> float:
+        w = World(
+            active_zone=True,
+            rest_time=0.05,
+            rest_tolerance=0.0,
+            sleeper_compliance=compliance,
+            relinearize=1,
+            relinearize_above=relinearize_above,
+        )
+        w.add_plane()
+        w.add_spheres([[0.0, 0.0, R]], radius=R)
+        w.step(10)
+        assert not w.state.awake.any()
+        w.rest_time = 10.0  # the grain set on it stays awake while it settles
+        w.add_spheres([[0.0, 0.0, 3 * R]], radius=R)
+        w.step(100)
+        assert w.state.public(w.state.awake).tolist() == [False, True]
+        return 2 * R - float(w.positions[1, 2] - w.positions[0, 2])
+
+    rigid = overlap(1.0)
+    expected = _hertz_overlap(World().density * 4 / 3 * np.pi * R**3 * G, 1.0e8, 0.3, R / 2)
+    assert rigid == pytest.approx(expected, rel=0.02)
+    assert overlap(3.0) == pytest.approx(3.0 ** (2 / 3) * rigid, rel=0.02)
+
+
 def test_switching_the_active_zone_off_wakes_every_sleeper():
     w = World(active_zone=True, rest_time=0.05)
     w.add_plane()
@@ -436,7 +467,9 @@ def test_active_zone_reads_its_config_section():
     from dozerlab.ndem.params import Parameters
 
     zone = {"enabled": True, "margin": 0.5, "rest_speed": 0.01, "rest_time": 0.2, "wake_load": 3}
-    p = Parameters.from_config(load_config({"solver": {"active_zone": zone}}))
+    p = Parameters.from_config(
+        load_config({"solver": {"active_zone": zone | {"sleeper_compliance": 2}}})
+    )
     assert (p.active_zone, p.zone_margin, p.rest_speed, p.rest_time) == (True, 0.5, 0.01, 0.2)
-    assert p.wake_load == 3.0
+    assert (p.wake_load, p.sleeper_compliance) == (3.0, 2.0)
     assert Parameters().active_zone is False  # off by default: the full solve

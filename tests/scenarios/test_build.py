@@ -220,6 +220,7 @@ def test_the_pour_steps_with_every_solver_and_material_setting_of_the_config(mon
                 "rest_speed": 0.03,
                 "rest_time": 0.3,
                 "wake_load": 3.0,
+                "sleeper_compliance": 5.0,
             },
         },
         "material": {"friction": 0.5, "rolling_resistance": 0.05},
@@ -245,4 +246,5 @@ def test_the_pour_steps_with_every_solver_and_material_setting_of_the_config(mon
     for key, value in given["material"].items():
         assert getattr(params, key) == value, key
     assert params.active_zone  # bed.active_zone, not the blade's
+    assert params.sleeper_compliance == 1.0  # the pour's sleepers stay rigid
     assert (params.dt, params.iterations) == (config["bed"]["dt"], config["bed"]["iterations"])

@@ -193,6 +193,7 @@ def assemble(
     h,
     upsilon,
     estar,
+    soft=1.0,
 ):
     """Order the contacts for the partitioned sweep and compute their row constants.
 
@@ -200,8 +201,10 @@ def assemble(
     S + s holds contacts between slabs s and s + 1; group 2S holds the frozen contacts, of a
     sleeping sphere (``awake`` (N,) False) with a sleeping sphere or a body, which the solver
     leaves as they are (their warm-start multipliers kept). ``invm``/``invI`` are 0 for a
-    sleeping sphere (a fixed obstacle to the awake ones). Returns i (Nc,), j (Nc,), the table
-    (Nc, NCOL), overlap (Nc,) and group offsets (2S + 2,).
+    sleeping sphere (a fixed obstacle to the awake ones); the compliance of a Hertz row between
+    an awake and a sleeping sphere is ``soft`` (≥ 1) times its own, for the bed the sleeper
+    stands for yields behind it (``solver.active_zone.sleeper_compliance``; 1 without the zone).
+    Returns i (Nc,), j (Nc,), the table (Nc, NCOL), overlap (Nc,) and group offsets (2S + 2,).
     """
     mp = pi.shape[0]
     mt = mp + bi.shape[0]
@@ -296,6 +299,8 @@ def assemble(
             # near-zero stiffness would sink in by a whole step's travel.
             kn = 4.0 / 3.0 * estar * np.sqrt(rstar)
             eps = 4.0 / (5.0 * kn * np.sqrt(max(g - h * un0, g, 1e-9 * rstar)))
+            if j >= 0 and not (awake[i] and awake[j]):
+                eps *= soft
             sig = 4.0 * upsilon * eps / (h * h)
             rhs = 4.0 * upsilon / h * 0.8 * g + upsilon * un0
         cd[k, SIG] = sig

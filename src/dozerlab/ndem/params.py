@@ -39,6 +39,7 @@ ZONE_KEYS = {
     "rest_speed": "rest_speed",
     "rest_time": "rest_time",
     "wake_load": "wake_load",
+    "sleeper_compliance": "sleeper_compliance",
 }
 MATERIAL_KEYS = (
     "density",
@@ -92,7 +93,8 @@ class Parameters:
     can move (``solver.active_zone``), grains at rest outside the moving boxes grown by
     zone_margin (m) sleeping once slower than rest_speed (m/s) for rest_time (s), and a sleeper
     waking when the awake grains' normal impulses on it pass wake_load (≥ 1) times those of its
-    resting contacts.
+    resting contacts; a Hertz contact of an awake grain with a sleeper sleeper_compliance (≥ 1)
+    times as compliant as its own.
     """
 
     dt: float = field(default_factory=_schema("dt"))
@@ -121,6 +123,7 @@ class Parameters:
     rest_speed: float = field(default_factory=_schema("rest_speed"))
     rest_time: float = field(default_factory=_schema("rest_time"))
     wake_load: float = field(default_factory=_schema("wake_load"))
+    sleeper_compliance: float = field(default_factory=_schema("sleeper_compliance"))
 
     def __post_init__(self) -> None:
         def put(name: str, value: object) -> None:
@@ -176,6 +179,9 @@ class Parameters:
         if not (np.isfinite(self.wake_load) and self.wake_load >= 1.0):
             raise ValueError(f"wake_load must be >= 1, got {self.wake_load!r}")
         put("wake_load", float(self.wake_load))
+        if not (np.isfinite(self.sleeper_compliance) and self.sleeper_compliance >= 1.0):
+            raise ValueError(f"sleeper_compliance must be >= 1, got {self.sleeper_compliance!r}")
+        put("sleeper_compliance", float(self.sleeper_compliance))
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> Parameters:

@@ -377,7 +377,7 @@ def deepest_end(ci, cj, cd, gap, v, r, h, swept, compliant=True):
 
 
 @njit(parallel=True, cache=True)
-def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
+def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept, awake, soft):
     """Re-linearise, in place, the Hertz rows whose pair reaches by the end of the step an
     overlap over :data:`SINK` times the one their compliance was taken at and over
     :data:`SINK_FLOOR` of the smaller radius; returns how many.
@@ -389,7 +389,8 @@ def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
     g − h·uₙ the current velocities reach, the row carries the load. Only rows with Σ > 0
     (compliant, not speculative) among the first ``swept`` (the frozen group, after them, is
     never swept) change; Σ only decreases (stiffer). ``gap`` (Nc,) m, ``v`` (N, 3) m/s after
-    the solve, ``r`` (N,) m, ``estar`` Pa, ``h`` s, ``upsilon`` as in the assembly.
+    the solve, ``r`` (N,) m, ``estar`` Pa, ``h`` s, ``upsilon``, ``awake`` (N,) and ``soft`` as
+    in the assembly (a row with a sleeper keeps its ``soft`` times the compliance).
     """
     changed = np.zeros(swept, dtype=np.int64)
     for k in prange(swept):
@@ -403,10 +404,11 @@ def stiffen(ci, cj, cd, gap, v, r, estar, h, upsilon, swept):
         j = cj[k]
         rstar = r[i] * r[j] / (r[i] + r[j]) if j >= 0 else r[i]
         kn = 4.0 / 3.0 * estar * np.sqrt(rstar)
-        # the overlap Σ was taken at: Σ = 16 Υ / (5 k_n h² √g)
-        root = 16.0 * upsilon / (5.0 * kn * h * h * sig)
+        scale = soft if j >= 0 and not (awake[i] and awake[j]) else 1.0
+        # the overlap Σ was taken at: Σ = scale · 16 Υ / (5 k_n h² √g)
+        root = scale * 16.0 * upsilon / (5.0 * kn * h * h * sig)
         if g_end > SINK * root * root:
-            new = 16.0 * upsilon / (5.0 * kn * h * h * np.sqrt(g_end))
+            new = scale * 16.0 * upsilon / (5.0 * kn * h * h * np.sqrt(g_end))
             sn = 1.0 / cd[k, KN] - sig
             cd[k, SIG] = new
             cd[k, KN] = 1.0 / (sn + new)

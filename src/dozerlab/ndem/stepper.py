@@ -224,6 +224,7 @@ def _solve_awake(
     )
     nu = p.poisson_ratio
     estar = p.youngs_modulus / (2.0 * (1.0 - nu * nu))
+    soft = p.sleeper_compliance if p.active_zone else 1.0
     upsilon = 1.0 / (1.0 + 4.0 * p.damping_steps)
     ci, cj, cd, gap, gstart = contacts.assemble(
         *pairs,
@@ -245,6 +246,7 @@ def _solve_awake(
         h,
         upsilon,
         estar,
+        soft,
     )
     overlap = _check_overlap(state, p, ci, cj, gap)
     if p.active_zone:
@@ -285,7 +287,10 @@ def _solve_awake(
             rounds = rounds if deepest > p.relinearize_above else 0
         ran = 0
         for _ in range(rounds):
-            if solver.stiffen(ci, cj, cd, gap, state.v, state.r, estar, h, upsilon, swept) == 0:
+            stiffened = solver.stiffen(
+                ci, cj, cd, gap, state.v, state.r, estar, h, upsilon, swept, state.awake, soft
+            )
+            if stiffened == 0:
                 break
             residual, more = solver.solve(
                 *(ci, cj, cd, lam, state.v, state.w, invm, invI, gstart, n_slabs, p.iterations),

@@ -90,6 +90,7 @@ class World:
     rest_speed = _parameter("rest_speed")
     rest_time = _parameter("rest_time")
     wake_load = _parameter("wake_load")
+    sleeper_compliance = _parameter("sleeper_compliance")
 
     @property
     def time(self) -> float:

@@ -253,13 +253,16 @@ def build_bed(scenario: str, config: dict[str, Any], *, progress: bool = True) -
     dt, log_every = float(b["dt"]), int(b["log_every"])
     # every solver and material setting of the config, with the bed's own step, sweeps and zone;
     # the pour's settling was measured with its bed.iterations sweeps every step, and nothing
-    # would switch solver.rest_tolerance off in it (no body moves), so that stays out
+    # would switch solver.rest_tolerance off in it (no body moves), so that stays out; its
+    # sleepers are the settled layers under the strip, measured rigid ("Beds poured with the
+    # active zone" in BENCHMARKS.md), not a bed a blade pushes
     world = World.from_config(config)
     world.params = world.params.with_(
         dt=dt,
         iterations=int(b["iterations"]),
         active_zone=bool(b["active_zone"]),
         rest_tolerance=0.0,
+        sleeper_compliance=1.0,
     )
     add_walls(world, emitter.length, emitter.width, float(mat["wall_friction"]))
     # The strip needs at least one layer per row; twice the layers the estimate needs, at most.
