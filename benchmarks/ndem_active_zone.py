@@ -25,6 +25,9 @@ honest with three or four runs a side: a design identical to the full solve woul
 worse than the twins' mean on a given figure half the time, and its worst of four runs worse
 than the worst of three twins four times in seven, so it would fail one of six such comparisons
 most of the time. The printed spreads show how far inside or outside the range each figure lies.
+What the departure is made of follows: the design's runs' spread against NDEM's draws' (the full
+run and its twins), how far apart the two groups' means lie against what chaos alone would leave,
+and its mean push against NDEM's (``departure``).
 
     python benchmarks/ndem_active_zone.py --results results --configfile config/config.yaml
     python benchmarks/ndem_active_zone.py --points hill:0.875:0.045 --threads 1 --seeds 1 2 3 \
@@ -159,6 +162,53 @@ def passes_spread(design: dict[str, dict[str, float]], twins: dict[str, dict[str
         if sign * design[name]["mean"] > sign * twins[name]["worst"]:
             return False
     return True
+
+
+def departure(ndem: list[dict[str, Any]], design: list[dict[str, Any]]) -> dict[str, float]:
+    """What a design's departure from NDEM is made of, on the pushing force low-passed over
+    0.1 s: NDEM's draws (``ndem``: the full run and its twins) and the design's runs, at least
+    two a group, each averaged over its runs. A run's spread about its group's mean (relative
+    RMS over the pass, to NDEM's mean push): the chaos. How far apart the two means lie, over
+    what chaos alone would leave between them (√(σ²_ndem/n + σ²_design/m)): above 1, a bias
+    adds to the chaos. And the mean push over the pass (N, the magnitude of force x), the
+    design's less NDEM's, also in standard errors of that difference."""
+    from dozerlab.reduce.compare import low_pass
+
+    rows = min(len(r["force"]) for r in ndem + design)
+
+    def group(runs: list[dict[str, Any]]) -> tuple[np.ndarray, float, np.ndarray]:
+        lp = np.array([low_pass(r["force"][:rows, 0], r["row_dt"], 0.1) for r in runs])
+        var = float(((lp - lp.mean(axis=0)) ** 2).sum() / ((len(runs) - 1) * rows))
+        push = np.array([abs(float(r["force"][:rows, 0].mean())) for r in runs])
+        return lp.mean(axis=0), var, push
+
+    mean_n, var_n, push_n = group(ndem)
+    mean_d, var_d, push_d = group(design)
+    scale = float(np.abs(mean_n).mean())
+    apart = float(np.sqrt(((mean_d - mean_n) ** 2).mean()))
+    chaos = float(np.sqrt(var_n / len(ndem) + var_d / len(design)))
+    difference = float(push_d.mean() - push_n.mean())
+    se = float(np.sqrt(push_n.var(ddof=1) / len(ndem) + push_d.var(ddof=1) / len(design)))
+    return {
+        "spread_ndem": float(np.sqrt(var_n)) / scale,
+        "spread_design": float(np.sqrt(var_d)) / scale,
+        "spread_ratio": float(np.sqrt(var_d / var_n)),
+        "apart_over_chaos": apart / chaos,
+        "push_ndem_n": float(push_n.mean()),
+        "push_difference_n": difference,
+        "push_difference_se": difference / se,
+    }
+
+
+def departure_line(label: str, name: str, d: dict[str, float]) -> str:
+    """One printed row of :func:`departure`."""
+    return (
+        f"{label:<20} {name:<16} a run's spread {d['spread_design']:5.1%} against NDEM's "
+        f"{d['spread_ndem']:5.1%} ({d['spread_ratio']:.2f}x); means apart "
+        f"{d['apart_over_chaos']:.2f}x what chaos alone leaves; mean push "
+        f"{d['push_difference_n']:+.0f} N ({d['push_difference_n'] / d['push_ndem_n']:+.1%}, "
+        f"{d['push_difference_se']:+.1f} standard errors) against NDEM's {d['push_ndem_n']:.0f} N"
+    )
 
 
 def spread_line(label: str, name: str, sp: dict[str, dict[str, float]], ok: str) -> str:
@@ -339,6 +389,14 @@ def main() -> None:
                     spread_line(label, f"{design} ({len(mine)})", sp, "yes" if ok else "NO"),
                     flush=True,
                 )
+            # the full run and its twins against each design's runs, each group's mean over
+            # its draws: how much of the departure is a wider spread, how much a bias
+            draws = [full, *twins.values()]
+            for design, _ in designs:
+                mine_runs = [r for d, _, r in runs.values() if d == design]
+                if len(draws) > 1 and len(mine_runs) > 1:
+                    spreads[design]["departure"] = dep = departure(draws, mine_runs)
+                    print(departure_line(label, design, dep), flush=True)
         rows.append(
             {
                 "point": label,

@@ -52,3 +52,40 @@ def test_ndem_against_lammps_measures_overlaps_with_the_blade_box():
     assert nvl.overlap_fraction(x, r, box, blade) == pytest.approx(0.5)
     inside = (blade[0] + [0.05, 0.0, 0.0], blade[1] + [0.05, 0.0, 0.0])
     assert nvl.overlap_fraction(x, r, box, inside) == pytest.approx(1.0)
+
+
+def test_zone_departure_tells_a_wider_spread_from_a_bias():
+    # NDEM's draws: one mean push curve and its chaos; the designs: the same chaos, a wider one,
+    # and the same chaos about a push 3 % larger
+    spec = importlib.util.spec_from_file_location(
+        "naz", ROOT / "benchmarks" / "ndem_active_zone.py"
+    )
+    assert spec and spec.loader
+    naz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(naz)
+    rng = np.random.default_rng(0)
+    t = np.arange(4000) * 0.01
+    curve = -2000.0 - 300.0 * np.sin(t)
+
+    def runs(n: int, scale: float, noise: float) -> list[dict]:
+        out = []
+        for _ in range(n):
+            f = np.zeros((t.size, 3))
+            f[:, 0] = scale * curve + noise * rng.standard_normal(t.size)
+            out.append({"force": f, "row_dt": 0.01})
+        return out
+
+    ndem = runs(8, 1.0, 400.0)
+    same = naz.departure(ndem, runs(8, 1.0, 400.0))
+    wider = naz.departure(ndem, runs(8, 1.0, 600.0))
+    harder = naz.departure(ndem, runs(8, 1.03, 400.0))
+    assert same["spread_ratio"] == pytest.approx(1.0, abs=0.05)
+    assert same["apart_over_chaos"] == pytest.approx(1.0, abs=0.1)
+    assert wider["spread_ratio"] == pytest.approx(1.5, abs=0.07)
+    assert wider["apart_over_chaos"] == pytest.approx(1.0, abs=0.1)
+    # a bias as large as what chaos alone leaves between the means: about √2 of it
+    assert harder["apart_over_chaos"] == pytest.approx(np.sqrt(2.0), abs=0.12)
+    assert harder["push_difference_n"] == pytest.approx(60.0, abs=5.0)
+    assert harder["push_difference_se"] > 5.0 and abs(same["push_difference_se"]) < 3.0
+    # low-passed over 0.1 s (10 rows), a run's noise of 400 N falls to about 400/√10 N
+    assert same["spread_ndem"] == pytest.approx(400.0 / np.sqrt(10) / 2000.0, rel=0.15)
